@@ -1,0 +1,67 @@
+"""napari-lfalias: light-field decoding, refocusing, and angular-aliasing
+detection and reduction (Xiao et al., CVPR 2014).
+
+The public API (DESIGN section 3) is available from the package::
+
+    import napari_lfalias as lfa
+    lf = lfa.load(path)
+    img = lfa.refocus(lf, slope)
+    det = lfa.detect_aliasing(lf, slope)
+    res = lfa.reduce_aliasing(lf, slope)
+
+Submodules are imported on first use, so ``import napari_lfalias`` stays
+cheap (the napari plugin and the command line start fast).
+"""
+
+import importlib
+
+from .errors import CalibrationError, DecodeError, LightFieldError, ParameterError
+from .lightfield import LightField, regular_positions
+
+__version__ = "0.1.0"
+
+# public name -> submodule that defines it
+_LAZY = {
+    "load": "loading",
+    "refocus": "refocus",
+    "shift_views": "refocus",
+    "view_moments": "refocus",
+    "ShiftedStack": "refocus",
+    "detect_aliasing": "detect",
+    "Detection": "detect",
+    "reduce_aliasing": "reduce",
+    "Reduction": "reduce",
+    "prefilter_refocus": "baselines",
+    "depth_aware_refocus": "baselines",
+    "refocus_sweep": "sweep",
+}
+
+_SUBMODULES = {
+    "decoders", "synthetic", "metrics", "poisson", "detect", "reduce",
+    "baselines", "refocus", "loading", "sweep", "pyramid",
+}
+
+__all__ = [
+    "LightField",
+    "regular_positions",
+    "LightFieldError",
+    "ParameterError",
+    "DecodeError",
+    "CalibrationError",
+    *_LAZY,
+]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        module = importlib.import_module(f".{_LAZY[name]}", __name__)
+        value = getattr(module, name)
+        globals()[name] = value
+        return value
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__) | _SUBMODULES)

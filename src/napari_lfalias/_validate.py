@@ -1,0 +1,54 @@
+"""Checks of parameters at the API boundary (DESIGN section 5).
+
+Each helper raises :class:`~napari_lfalias.errors.ParameterError` with the
+parameter's name, the value received and the range expected.
+"""
+
+import math
+import numbers
+
+from .errors import ParameterError
+
+
+def finite_float(name, value):
+    """Return ``value`` as a float, or raise if it is not a finite real number."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ParameterError(f"{name} must be a real number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{name} must be finite, got {value!r}")
+    return value
+
+
+def in_open_interval(name, value, low, high):
+    """Return ``value`` as a float, checking ``low < value < high``."""
+    value = finite_float(name, value)
+    if not low < value < high:
+        raise ParameterError(f"{name} must satisfy {low} < {name} < {high}, got {value!r}")
+    return value
+
+
+def positive_float(name, value):
+    """Return ``value`` as a float, checking ``value > 0``."""
+    value = finite_float(name, value)
+    if value <= 0:
+        raise ParameterError(f"{name} must be > 0, got {value!r}")
+    return value
+
+
+def integer_at_least(name, value, minimum):
+    """Return ``value`` as an int, checking it is a whole number ``>= minimum``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ParameterError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    value = int(value)
+    if value < minimum:
+        raise ParameterError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def one_of(name, value, choices):
+    """Return ``value``, checking it is one of ``choices``."""
+    if value not in choices:
+        options = ", ".join(repr(c) for c in choices)
+        raise ParameterError(f"{name} must be one of {options}; got {value!r}")
+    return value

@@ -18,15 +18,15 @@ import importlib
 from .errors import CalibrationError, DecodeError, LightFieldError, ParameterError
 from .lightfield import LightField, regular_positions
 
+# Imported eagerly: the function shares its name with its module, and a lazy
+# import of the module would shadow the function on the package.
+from .refocus import ShiftedStack, refocus, shift_views, view_moments
+
 __version__ = "0.1.0"
 
 # public name -> submodule that defines it
 _LAZY = {
     "load": "loading",
-    "refocus": "refocus",
-    "shift_views": "refocus",
-    "view_moments": "refocus",
-    "ShiftedStack": "refocus",
     "detect_aliasing": "detect",
     "Detection": "detect",
     "reduce_aliasing": "reduce",
@@ -48,6 +48,10 @@ __all__ = [
     "ParameterError",
     "DecodeError",
     "CalibrationError",
+    "refocus",
+    "shift_views",
+    "view_moments",
+    "ShiftedStack",
     *_LAZY,
 ]
 

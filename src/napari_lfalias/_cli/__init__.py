@@ -1,0 +1,1 @@
+"""Pieces of the ``lfalias`` command line (the entry point is :mod:`napari_lfalias.cli`)."""

@@ -1,0 +1,35 @@
+"""The ``batch`` subcommand: many inputs as dask tasks."""
+
+from __future__ import annotations
+
+import sys
+
+from .progress import Progress
+
+__all__ = ["run_batch_command"]
+
+
+def run_batch_command(args, stream):
+    """Run ``lfalias batch``; exit status 1 when any input failed."""
+    from ..batch import run_batch
+
+    bar = Progress(len(args.inputs), f"batch {args.task}", quiet=args.quiet)
+    failures = []
+
+    def progress(source, status, detail):
+        bar.update()
+        if status == "failed":
+            failures.append(f"{source}: {detail}")
+
+    report = run_batch(
+        args.inputs, args.out, args.task, scheduler=args.scheduler, workers=args.workers, fmt=args.format,
+        overwrite=args.overwrite, white=args.white, dark=args.dark, grid=args.grid, slope=args.slope,
+        gamma=args.gamma, n_patterns=args.n, threshold=args.threshold, method=args.method, seed=args.seed,
+        max_level=args.levels, progress=progress,
+    )
+    bar.close()
+    stream.write(f"{len(report.done)} done, {len(report.skipped)} skipped (already done), "
+                 f"{len(report.failed)} failed in {report.seconds:.1f} s -> {args.out}\n")
+    for line in failures:
+        sys.stderr.write(f"lfalias: error: {line}\n")
+    return 0 if report.ok else 1

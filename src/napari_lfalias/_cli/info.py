@@ -1,0 +1,103 @@
+"""The ``info`` subcommand: what a file or folder holds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .. import io_write
+from .._inputs import open_input
+from ..errors import DecodeError
+
+__all__ = ["run_info", "describe"]
+
+
+def _image_facts(path):
+    """Shape and dtype of a plain image file, without decoding it as a light field."""
+    import imageio.v3 as iio
+
+    try:
+        props = iio.improps(path)
+    except Exception as exc:  # noqa: BLE001 - imageio raises many kinds for unreadable files
+        raise DecodeError(f"{path}: not a readable image or light field ({exc.__class__.__name__})") from exc
+    return {"image_shape": list(props.shape), "dtype": str(props.dtype)}
+
+
+def _grid_facts(grid):
+    if grid is None:
+        return None
+    if hasattr(grid, "to_json"):
+        return json.loads(grid.to_json())
+    return grid if isinstance(grid, dict) else str(grid)
+
+
+def _disparity_facts(lf):
+    """Disparity range: ground truth or a stated range when the source has one, else estimated."""
+    meta = lf.meta
+    if meta.get("disparity_range") is not None:
+        low, high = meta["disparity_range"]
+        return {"min": float(low), "max": float(high), "from": "metadata"}
+    truth = meta.get("disparity")
+    if isinstance(truth, (np.ndarray, list)):
+        truth = np.asarray(truth, np.float64)
+        return {"min": float(np.nanmin(truth)), "max": float(np.nanmax(truth)), "from": "ground truth"}
+    from ..sweep import estimate_slope_range
+
+    low, high = estimate_slope_range(lf)
+    return {"min": low, "max": high, "from": "estimated (5th-95th percentile of photo-consistent slopes)"}
+
+
+def describe(path, white=None, dark=None, grid=None):
+    """Return the facts about ``path`` as a dict (what ``lfalias info --json`` prints)."""
+    path = Path(path)
+    if not path.exists():
+        raise DecodeError(f"{path}: no such file or folder")
+    header = io_write.is_lightfield_file(path)
+    facts = {"path": str(path)}
+    if header is not None:
+        facts["format"] = f"{io_write.FORMAT_NAME} ({'zarr store' if path.suffix.lower() == '.zarr' else 'ImageJ TIFF'})"
+    elif path.is_dir():
+        facts["format"] = "folder of views (camera array)"
+    elif white is None and grid is None:
+        facts["format"] = "image file (a lenslet capture needs --white to decode)"
+        facts.update(_image_facts(path))
+        return facts
+    else:
+        facts["format"] = "lenslet capture"
+    lf = open_input(path, white=white, dark=dark, grid=grid)
+    source_format = lf.meta.get("format")
+    if source_format:
+        facts["source format"] = source_format
+    facts["views"] = f"{lf.grid_shape[0]} x {lf.grid_shape[1]}"
+    facts["view size"] = f"{lf.image_shape[0]} x {lf.image_shape[1]} px, {lf.n_channels} channel(s)"
+    span = np.ptp(lf.flat_positions(), axis=0)
+    facts["aperture"] = f"{span[0]:g} x {span[1]:g} grid steps (y, x)"
+    facts["sample weights"] = "yes" if lf.weights is not None else "no"
+    grid_facts = _grid_facts(lf.meta.get("grid"))
+    if grid_facts is not None:
+        facts["grid"] = grid_facts
+    facts["disparity"] = _disparity_facts(lf)
+    return facts
+
+
+def _print(facts, stream):
+    for key, value in facts.items():
+        if key == "disparity":
+            value = f"{value['min']:.3g} .. {value['max']:.3g} px per view step ({value['from']})"
+        elif key == "grid" and isinstance(value, dict):
+            value = ", ".join(f"{k}={v}" for k, v in value.items() if not isinstance(v, (list, dict)))
+        elif isinstance(value, list):
+            value = " x ".join(str(v) for v in value)
+        stream.write(f"{key + ':':<16s}{value}\n")
+
+
+def run_info(args, stream):
+    """Print what ``args.input`` holds."""
+    facts = describe(args.input, args.white, args.dark, args.grid)
+    if args.json:
+        stream.write(json.dumps(facts, indent=2, default=str) + "\n")
+    else:
+        _print(facts, stream)
+    return 0

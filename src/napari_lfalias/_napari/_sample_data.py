@@ -1,0 +1,67 @@
+"""napari sample data: the synthetic brick room and the bundled GUV capture."""
+
+from __future__ import annotations
+
+from ._layers import lightfield_layer_data
+
+__all__ = ["brick_room", "guv_capture", "GUV_FILES"]
+
+#: The bundled GUV light-field microscope capture (napari-LF, BSD-3).
+GUV_FILES = {
+    "raw": "Lightfield_GUVExperim1.tif",
+    "white": "Radiometry_GUVExperim1.tif",
+    "dark": "DarkFrame_GUVExperim1.tif",
+}
+
+
+def brick_room(n_views=8, size=512, seed=0):
+    """The brick room of Xiao et al. (2014), Figure 6, as a light-field layer.
+
+    Parameters
+    ----------
+    n_views : int
+        Views per side of the camera grid.
+    size : int
+        Width and height of each view in pixels.
+    seed : int
+        Seed of the procedural textures.
+
+    Returns
+    -------
+    list of tuple
+        One layer-data tuple: the ``(U, V, Y, X, 3)`` light field, its
+        LightField (with ground-truth disparity in its metadata) in
+        ``metadata["lightfield"]``.
+    """
+    from ..synthetic import brick_room as make_scene
+
+    scene = make_scene(n_views=n_views, size=size, seed=seed)
+    lf = scene.lightfield
+    if lf.meta.get("disparity_range") is None and len(scene.layers_disparity):
+        # the focus control spans the scene's depth layers
+        lf.meta["disparity_range"] = (float(min(scene.layers_disparity)), float(max(scene.layers_disparity)))
+    return [lightfield_layer_data(lf, "brick room")]
+
+
+def guv_capture():
+    """The GUV light-field microscope capture, decoded to a 4-D light field.
+
+    The raw lenslet image is calibrated with its radiometry (white) and
+    dark frames and sliced into views by
+    :func:`napari_lfalias.decoders.lenslet.load_lenslet`.
+
+    Returns
+    -------
+    list of tuple
+        One layer-data tuple of the decoded light field.
+    """
+    from .. import load
+    from .._paths import sample_data_dir
+
+    folder = sample_data_dir() / "guv"
+    lf = load(
+        folder / GUV_FILES["raw"],
+        white=folder / GUV_FILES["white"],
+        dark=folder / GUV_FILES["dark"],
+    )
+    return [lightfield_layer_data(lf, "GUV capture")]

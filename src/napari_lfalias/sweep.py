@@ -1,0 +1,226 @@
+"""Lazy slope sweeps: a refocus (or Cv, or mask) per slope as one dask array.
+
+A sweep is ``(S, Y, X[, C])`` with one slope per chunk, so nothing is
+computed until a slice is asked for: a script computes what it needs, and
+napari's dimension slider computes the slope on screen. The light field is
+one node of the task graph, shared by every slope.
+"""
+
+from __future__ import annotations
+
+import uuid
+
+import numpy as np
+
+from . import _validate
+from .errors import ParameterError
+from .lightfield import LightField
+
+__all__ = ["refocus_sweep", "estimate_slope_range", "aliasing_by_slope", "SWEEP_KINDS"]
+
+#: What a sweep can hold per slope.
+SWEEP_KINDS = ("refocus", "cv", "mask")
+
+
+def _slope_plane(lf, slope, what, detect_kw):
+    if what == "refocus":
+        from .refocus import refocus
+
+        return refocus(lf, slope)
+    from .detect import detect_aliasing
+
+    detection = detect_aliasing(lf, slope, **detect_kw)
+    return detection.cv if what == "cv" else detection.mask
+
+
+def _slopes_array(slopes):
+    try:
+        slopes = np.asarray(slopes, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"slopes must be a sequence of real numbers, got {slopes!r}") from exc
+    if slopes.ndim != 1 or slopes.size == 0:
+        raise ParameterError(f"slopes must be a non-empty 1-D sequence, got shape {slopes.shape}")
+    if not np.all(np.isfinite(slopes)):
+        raise ParameterError(f"slopes must be finite, got {slopes.tolist()}")
+    return slopes
+
+
+def refocus_sweep(lf, slopes, what="refocus", **detect_kw):
+    """Refocused images, Cv maps or aliasing masks over a range of slopes, computed lazily.
+
+    Parameters
+    ----------
+    lf : LightField
+        The light field. A lazy one is read into memory once per
+        ``compute`` call, by one node shared by every slope asked for.
+    slopes : sequence of float
+        The slopes (disparities in focus), one output plane each.
+    what : {"refocus", "cv", "mask"}
+        ``"refocus"``: :func:`~napari_lfalias.refocus` images,
+        ``(S, Y, X, C)`` float32; ``"cv"``: the Cv map of
+        :func:`~napari_lfalias.detect_aliasing`, ``(S, Y, X)`` float32;
+        ``"mask"``: its aliasing mask, ``(S, Y, X)`` bool.
+    **detect_kw
+        Passed to :func:`~napari_lfalias.detect_aliasing` (``gamma``,
+        ``n_patterns``, ``threshold``, ``method``, ``seed``); not allowed
+        with ``what="refocus"``.
+
+    Returns
+    -------
+    dask.array.Array
+        Chunked one slope per chunk; ``sweep[i]`` is the plane of
+        ``slopes[i]``.
+
+    Raises
+    ------
+    ParameterError
+        For empty or non-finite slopes, an unknown ``what``, or detection
+        options given to a refocus sweep.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import napari_lfalias as lfa
+    >>> lf = lfa.LightField(np.full((3, 3, 8, 8, 1), 0.5, np.float32))
+    >>> sweep = lfa.refocus_sweep(lf, [-1.0, 0.0, 1.0])
+    >>> sweep.shape, sweep.chunksize[0]
+    ((3, 8, 8, 1), 1)
+    >>> float(sweep[2].mean().compute())
+    0.5
+
+    In napari, ``viewer.add_image(sweep)`` puts the slopes on a slider.
+    """
+    import dask
+    import dask.array as da
+
+    if not isinstance(lf, LightField):
+        raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
+    _validate.one_of("what", what, SWEEP_KINDS)
+    if what == "refocus" and detect_kw:
+        raise ParameterError(
+            f"detection options {sorted(detect_kw)} only apply to what='cv' or what='mask'"
+        )
+    slopes = _slopes_array(slopes)
+    if what != "refocus":
+        # Check the options now, not when napari first draws a slice.
+        from .detect import detect_aliasing
+
+        small = LightField(np.zeros(lf.grid_shape + (4, 4, 1), np.float32), lf.positions)
+        detect_aliasing(small, float(slopes[0]), **detect_kw)
+
+    token = uuid.uuid4().hex
+    # Naming the light field's node keeps dask from hashing its whole array.
+    lf_node = dask.delayed(lf, name=f"lightfield-{token}", pure=True)
+    if lf.is_lazy:
+        lf_node = dask.delayed(LightField.compute, pure=True)(lf_node, dask_key_name=f"lightfield-data-{token}")
+    image_shape = lf.image_shape
+    if what == "refocus":
+        shape, dtype = image_shape + (lf.n_channels,), np.float32
+    else:
+        shape, dtype = image_shape, (np.float32 if what == "cv" else np.bool_)
+    planes = []
+    for i, slope in enumerate(slopes):
+        plane = dask.delayed(_slope_plane, pure=True)(
+            lf_node, float(slope), what, detect_kw, dask_key_name=f"sweep-{what}-{token}-{i}"
+        )
+        planes.append(da.from_delayed(plane, shape=shape, dtype=dtype))
+    return da.stack(planes)
+
+
+def _block_mean(lf, factor):
+    """Light field of luminance views shrunk by ``factor`` (block means), positions kept."""
+    views = lf.luminance().views()[..., 0]
+    n, height, width = views.shape
+    height, width = height // factor * factor, width // factor * factor
+    views = views[:, :height, :width].reshape(n, height // factor, factor, width // factor, factor).mean(axis=(2, 4))
+    data = views.reshape(lf.grid_shape + views.shape[1:])
+    return LightField(data, lf.positions)
+
+
+def estimate_slope_range(lf, max_slope=4.0, n_slopes=33, max_size=128, percentiles=(5, 95)):
+    """Estimate the range of disparities in a scene from the photo-consistency of its views.
+
+    For each candidate slope the variance across the shifted views is
+    computed on a reduced copy of the luminance (block means down to
+    ``max_size`` pixels); each textured pixel takes the slope of least
+    variance, and the range spans ``percentiles`` of those picks. Flat
+    regions carry no depth cue and are left out.
+
+    Parameters
+    ----------
+    lf : LightField
+    max_slope : float
+        Candidates span ``[-max_slope, max_slope]`` pixels per unit of view
+        position (full-resolution pixels).
+    n_slopes : int
+        Number of candidates.
+    max_size : int
+        Longest side of the reduced views.
+    percentiles : (float, float)
+        Percentiles of the per-pixel picks reported as the range.
+
+    Returns
+    -------
+    (float, float)
+        Low and high slope, in full-resolution pixels per unit of view
+        position; ``(0.0, 0.0)`` when no pixel has a clear best slope
+        (a flat or noise-like scene).
+    """
+    from .refocus import view_moments
+
+    if not isinstance(lf, LightField):
+        raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
+    max_slope = _validate.positive_float("max_slope", max_slope)
+    n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 3)
+    if lf.is_lazy:
+        lf = lf.compute()
+    factor = max(1, int(np.ceil(max(lf.image_shape) / max_size)))
+    small = _block_mean(lf, factor)
+    slopes = np.linspace(-max_slope, max_slope, n_slopes)
+    variances = np.stack([view_moments(small, s / factor).variance[..., 0] for s in slopes])
+    centre = small.data[small.grid_shape[0] // 2, small.grid_shape[1] // 2, ..., 0]
+    gy, gx = np.gradient(centre)
+    texture = np.hypot(gy, gx)
+    # A pixel votes when it has texture and its best slope stands out from the rest.
+    confident = (texture > np.percentile(texture, 75)) & (variances.min(axis=0) < 0.25 * variances.mean(axis=0))
+    if not confident.any():
+        return 0.0, 0.0
+    picks = slopes[variances.argmin(axis=0)][confident]
+    low, high = np.percentile(picks, percentiles)
+    return float(low), float(high)
+
+
+def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
+    """Fraction of aliased pixels at each slope of a sweep.
+
+    Parameters
+    ----------
+    lf : LightField
+    slopes : sequence of float, optional
+        The slopes. Default: ``n_slopes`` across the range of
+        :func:`estimate_slope_range`, padded by half its width (at least 0.5
+        on each side), so both ends of the depth range are out of focus.
+    n_slopes : int
+        Number of slopes when ``slopes`` is not given.
+    **detect_kw
+        Passed to :func:`~napari_lfalias.detect_aliasing`.
+
+    Returns
+    -------
+    slopes : ndarray, shape (S,)
+    fractions : ndarray, shape (S,)
+        Fraction of pixels whose Cv exceeds the threshold at each slope.
+
+    Examples
+    --------
+    >>> import napari_lfalias as lfa                                    # doctest: +SKIP
+    >>> slopes, fractions = aliasing_by_slope(lf, threshold=0.02)       # doctest: +SKIP
+    >>> worst = slopes[fractions.argmax()]                              # doctest: +SKIP
+    """
+    if slopes is None:
+        n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 1)
+        low, high = estimate_slope_range(lf)
+        pad = 0.5 * max(high - low, 1.0)
+        slopes = np.linspace(low - pad, high + pad, n_slopes)
+    masks = refocus_sweep(lf, slopes, what="mask", **detect_kw)
+    return np.asarray(slopes, np.float64), masks.mean(axis=(1, 2)).compute()

@@ -1,0 +1,41 @@
+"""Small light fields with known disparity, written to real files, for the CLI, sweep and batch tests."""
+
+from pathlib import Path
+
+import numpy as np
+
+import napari_lfalias as lfa
+from napari_lfalias import io_write
+
+
+def plane_lightfield(n=5, size=48, disparity=1, channels=1, seed=0):
+    """A textured fronto-parallel plane at integer ``disparity`` seen by ``n x n`` views.
+
+    A point at centre pixel ``p`` is seen in view ``(u, v)`` at
+    ``p + disparity * positions[u, v]`` (DESIGN section 2), exactly: the
+    views are integer crops of one random texture.
+    """
+    rng = np.random.default_rng(seed)
+    half = n // 2
+    pad = abs(disparity) * half + 1
+    texture = rng.random((size + 2 * pad, size + 2 * pad, channels), dtype=np.float32)
+    positions = lfa.regular_positions(n, n)
+    views = np.empty((n, n, size, size, channels), np.float32)
+    for u in range(n):
+        for v in range(n):
+            dy, dx = (disparity * positions[u, v]).astype(int)
+            # view(x) = centre(x - d * q)
+            views[u, v] = texture[pad - dy: pad - dy + size, pad - dx: pad - dx + size]
+    return lfa.LightField(views, positions, {"source": "plane", "disparity_range": (disparity, disparity)})
+
+
+def write_plane(path, **kw):
+    """Write :func:`plane_lightfield` as a light-field TIFF/zarr; return (path, light field)."""
+    lf = plane_lightfield(**kw)
+    io_write.write_lightfield(path, lf)
+    return Path(path), lf
+
+
+def temporaries(folder):
+    """Every temporary name left anywhere under ``folder``."""
+    return [p for p in Path(folder).rglob("*") if io_write.is_temporary(p)]

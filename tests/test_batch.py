@@ -1,0 +1,205 @@
+"""Batch conversions and reductions on a real dask LocalCluster (2 worker processes)."""
+
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from napari_lfalias import io_write  # noqa: E402
+from napari_lfalias.batch import MARKER_DIR, plan_batch, run_batch, run_job  # noqa: E402
+from napari_lfalias.cli import main  # noqa: E402
+from napari_lfalias.errors import OutputExistsError, ParameterError  # noqa: E402
+
+from _cli_scenes import plane_lightfield, temporaries  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    yield client
+    client.close()
+    cluster.close()
+
+
+def write_inputs(folder, count, **kw):
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in range(count):
+        path = folder / f"scene{i}.tif"
+        io_write.write_lightfield(path, plane_lightfield(disparity=i % 3 - 1, seed=i, **kw))
+        paths.append(path)
+    return paths
+
+
+def run_serially(inputs, out_dir, task, **kw):
+    """The reference: every job run in this process, one after another."""
+    out_dir.mkdir()
+    for job in plan_batch(inputs, out_dir, task, **kw):
+        assert run_job(job)[1] == "done"
+    return out_dir
+
+
+def assert_same_lightfields(folder_a, folder_b, names):
+    for name in names:
+        a, b = io_write.read_lightfield(folder_a / name), io_write.read_lightfield(folder_b / name)
+        np.testing.assert_array_equal(a.data, b.data)
+        np.testing.assert_array_equal(a.positions, b.positions)
+
+
+def test_convert_batch_matches_the_serial_result(client, tmp_path):
+    inputs = write_inputs(tmp_path / "in", 4)
+    report = run_batch(inputs, tmp_path / "out", "convert", client=client, fmt="zarr")
+    assert sorted(report.done) == sorted(map(str, inputs)) and report.ok
+    serial = run_serially(inputs, tmp_path / "serial", "convert", fmt="zarr")
+    names = [f"scene{i}.zarr" for i in range(4)]
+    assert_same_lightfields(tmp_path / "out", serial, names)
+    # ... and both hold the inputs' views.
+    for i, name in enumerate(names):
+        np.testing.assert_array_equal(io_write.read_lightfield(tmp_path / "out" / name).data,
+                                      io_write.read_lightfield(inputs[i]).data)
+    assert temporaries(tmp_path) == []
+
+
+def test_a_rerun_skips_finished_outputs_and_redoes_changed_inputs(client, tmp_path):
+    inputs = write_inputs(tmp_path / "in", 3)
+    out = tmp_path / "out"
+    run_batch(inputs, out, "convert", client=client)
+    stamps = {p.name: p.stat().st_mtime_ns for p in out.glob("*.tif")}
+    again = run_batch(inputs, out, "convert", client=client)
+    assert again.done == [] and sorted(again.skipped) == sorted(map(str, inputs))
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.tif")} == stamps
+    # A changed input is converted again; the others are still skipped.
+    changed = plane_lightfield(disparity=2, seed=99)
+    io_write.write_lightfield(inputs[1], changed, overwrite=True)
+    third = run_batch(inputs, out, "convert", client=client)
+    assert third.done == [str(inputs[1])] and len(third.skipped) == 2
+    np.testing.assert_array_equal(io_write.read_lightfield(out / "scene1.tif").data, changed.data)
+
+
+def test_outputs_no_batch_wrote_are_kept_unless_overwrite(client, tmp_path):
+    inputs = write_inputs(tmp_path / "in", 2)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "scene0.tif").write_bytes(b"precious")
+    with pytest.raises(OutputExistsError, match="scene0.tif"):
+        run_batch(inputs, out, "convert", client=client)
+    assert (out / "scene0.tif").read_bytes() == b"precious"
+    assert not (out / "scene1.tif").exists()
+    report = run_batch(inputs, out, "convert", client=client, overwrite=True)
+    assert len(report.done) == 2
+    assert io_write.is_lightfield_file(out / "scene0.tif")
+
+
+def test_reduce_batch_matches_the_serial_result(client, tmp_path):
+    pytest.importorskip("napari_lfalias.reduce")
+    import tifffile
+
+    inputs = write_inputs(tmp_path / "in", 3, size=40)
+    options = {"slope": 0.0, "gamma": 0.2, "threshold": 0.02, "max_level": 2, "method": "analytic"}
+    report = run_batch(inputs, tmp_path / "out", "reduce", client=client, **options)
+    assert len(report.done) == 3
+    serial = run_serially(inputs, tmp_path / "serial", "reduce", **options)
+    for i in range(3):
+        for name in (f"scene{i}_reduced.tif", f"scene{i}_levels.tif"):
+            np.testing.assert_array_equal(tifffile.imread(tmp_path / "out" / name), tifffile.imread(serial / name))
+        assert (tmp_path / "out" / f"scene{i}_reduced.png").stat().st_size > 0
+
+
+def _kill_a_running_worker(client, markers, killed, deadline):
+    """Kill (SIGKILL) the worker process that runs a task, as soon as one is seen running."""
+    pids = set(client.run(os.getpid).values())
+    while time.monotonic() < deadline and not killed:
+        for marker in markers.glob("*.json"):
+            try:
+                record = json.loads(marker.read_text())
+            except (OSError, ValueError):
+                continue
+            if record["state"] == "running" and record["pid"] in pids:
+                time.sleep(0.05)  # let it get into its work
+                os.kill(record["pid"], signal.SIGKILL)
+                killed.append((marker.name, record["pid"]))
+                return
+        time.sleep(0.005)
+
+
+def test_a_worker_killed_mid_run_loses_nothing_and_leaves_no_partial_file(client, tmp_path):
+    inputs = write_inputs(tmp_path / "in", 8, n=7, size=128, channels=3)
+    out = tmp_path / "out"
+    killed = []
+    killer = threading.Thread(target=_kill_a_running_worker,
+                              args=(client, out / MARKER_DIR, killed, time.monotonic() + 60))
+    killer.start()
+    report = run_batch(inputs, out, "convert", client=client, fmt="zarr")
+    killer.join()
+    assert killed, "no task was seen running: nothing was killed"
+    assert report.ok and len(report.done) == 8
+    serial = run_serially(inputs, tmp_path / "serial", "convert", fmt="zarr")
+    assert_same_lightfields(out, serial, [f"scene{i}.zarr" for i in range(8)])
+    assert temporaries(tmp_path) == []
+    # The killed task was run again, by another process, to the end.
+    marker_name, pid = killed[0]
+    record = json.loads((out / MARKER_DIR / marker_name).read_text())
+    assert record["state"] == "done" and record["pid"] != pid
+
+
+def test_cli_batch_on_a_given_scheduler(client, tmp_path, capsys):
+    inputs = write_inputs(tmp_path / "in", 2)
+    out = tmp_path / "out"
+    argv = ["batch", *map(str, inputs), "--out", str(out), "--scheduler", client.scheduler.address, "-q"]
+    assert main(argv) == 0
+    assert "2 done, 0 skipped" in capsys.readouterr().out
+    assert main(argv) == 0
+    assert "0 done, 2 skipped" in capsys.readouterr().out
+    for i, path in enumerate(inputs):
+        np.testing.assert_array_equal(io_write.read_lightfield(out / f"scene{i}.tif").data,
+                                      io_write.read_lightfield(path).data)
+
+
+def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, capsys):
+    inputs = write_inputs(tmp_path / "in", 2)
+    bad = tmp_path / "in" / "broken.tif"
+    bad.write_bytes(b"not a tiff at all")
+    argv = ["batch", *map(str, inputs), str(bad), "--out", str(tmp_path / "out"),
+            "--scheduler", client.scheduler.address, "-q"]
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    assert "2 done, 0 skipped (already done), 1 failed" in captured.out
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("lfalias: error: ") and "broken.tif" in lines[0]
+    assert (tmp_path / "out" / "scene0.tif").exists() and not (tmp_path / "out" / "broken.tif").exists()
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"task": "reduce"}, "--slope"),
+        ({"task": "sharpen"}, "task"),
+        ({"fmt": "h5"}, "format"),
+    ],
+)
+def test_plan_rejects_bad_batches(tmp_path, kwargs, match):
+    inputs = write_inputs(tmp_path / "in", 1)
+    with pytest.raises(ParameterError, match=match):
+        plan_batch(inputs, tmp_path / "out", **kwargs)
+
+
+def test_plan_rejects_missing_inputs_and_clashing_names(tmp_path):
+    inputs = write_inputs(tmp_path / "in", 1)
+    with pytest.raises(ParameterError, match="no such input"):
+        plan_batch([tmp_path / "nope.tif"], tmp_path / "out")
+    twin = tmp_path / "other" / "scene0.tif"
+    twin.parent.mkdir()
+    twin.write_bytes(inputs[0].read_bytes())
+    with pytest.raises(ParameterError, match="both write scene0.tif"):
+        plan_batch([inputs[0], twin], tmp_path / "out")
+    assert not Path(tmp_path / "out").exists()

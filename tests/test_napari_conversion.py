@@ -1,0 +1,129 @@
+"""Lenslet conversion widget and sample data in a real viewer (run under xvfb-run)."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("napari")
+
+import napari_lfalias as lfa  # noqa: E402
+from napari_lfalias._napari._conversion_widget import (  # noqa: E402
+    LensletConversionWidget,
+    grid_centres,
+)
+from napari_lfalias._napari._layers import lightfield_of  # noqa: E402
+
+pytestmark = pytest.mark.napari
+
+PLUGIN = "napari-lfalias"
+TIMEOUT_MS = 60000
+GUV = ("Lightfield_GUVExperim1.tif", "Radiometry_GUVExperim1.tif", "DarkFrame_GUVExperim1.tif")
+
+
+def _role_layers(viewer, role):
+    return [layer for layer in viewer.layers if (layer.metadata or {}).get("lfalias") == role]
+
+
+@pytest.fixture
+def guv(lf_data):
+    return [lf_data / "napari_lf_guv" / name for name in GUV]
+
+
+def test_calibration_draws_the_fitted_microlens_centres(make_napari_viewer, qtbot, guv):
+    from napari_lfalias.decoders import calibrate
+
+    raw, white, dark = guv
+    viewer = make_napari_viewer()
+    widget = LensletConversionWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    widget.raw_field.set_path(raw)
+    widget._guess_frames()  # fills white and dark from the names beside the raw image
+    assert widget.white_field.path() == white
+    assert widget.dark_field.path() == dark
+    widget.calibrate()
+    qtbot.waitUntil(lambda: _role_layers(viewer, "grid"), timeout=TIMEOUT_MS)
+    points = _role_layers(viewer, "grid")[0]
+    expected = grid_centres(calibrate(white, dark=dark))
+    np.testing.assert_allclose(points.data, expected, atol=1e-6)
+    # ~15.4 px pitch on a 436 px frame: hundreds of lenses, all on the image
+    assert 400 < len(points.data) < 1200
+    assert points.data.min() >= -1 and points.data.max() <= 437
+    background = _role_layers(viewer, "white")[0]
+    assert background.data.shape == (436, 436)
+    # calibrating again replaces the layers instead of piling them up
+    widget.calibrate()
+    qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
+    assert len(_role_layers(viewer, "grid")) == 1
+    assert widget.shutdown()
+
+
+def test_conversion_adds_the_decoded_lightfield(make_napari_viewer, qtbot, guv):
+    raw, white, dark = guv
+    viewer = make_napari_viewer()
+    widget = LensletConversionWidget(viewer)
+    widget.raw_field.set_path(raw)
+    widget.white_field.set_path(white)
+    widget.dark_field.set_path(dark)
+    widget.convert()
+    qtbot.waitUntil(lambda: any(lightfield_of(layer) for layer in viewer.layers), timeout=TIMEOUT_MS)
+    layer = next(layer for layer in viewer.layers if lightfield_of(layer) is not None)
+    expected = lfa.load(raw, white=white, dark=dark)
+    np.testing.assert_array_equal(lightfield_of(layer).data, expected.data)
+    assert layer.name == raw.stem
+    assert widget.shutdown()
+
+
+def test_missing_white_image_is_reported_not_raised(make_napari_viewer, qtbot, tmp_path):
+    viewer = make_napari_viewer()
+    widget = LensletConversionWidget(viewer)
+    widget.raw_field.set_path(tmp_path / "raw.tif")
+    widget.convert()
+    assert "white" in widget.status.text()
+    assert widget.convert_button.isEnabled()
+    widget.white_field.set_path(tmp_path / "missing_white.tif")
+    widget.calibrate()
+    qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
+    assert "missing_white.tif" in widget.status.text()
+    assert len(viewer.layers) == 0
+
+
+def test_sample_data_are_in_the_manifest(make_napari_viewer):
+    from npe2 import PluginManager
+
+    manifest = PluginManager.instance().get_manifest(PLUGIN)
+    keys = {sample.key for sample in manifest.contributions.sample_data}
+    assert keys == {"brick_room", "guv"}
+    widgets = {w.display_name for w in manifest.contributions.widgets}
+    assert widgets == {"Refocus and aliasing", "Lenslet conversion"}
+
+
+def test_guv_sample_opens_decoded(make_napari_viewer):
+    from napari_lfalias._paths import sample_data_dir
+
+    viewer = make_napari_viewer()
+    viewer.open_sample(PLUGIN, "guv")
+    assert len(viewer.layers) == 1
+    lf = lightfield_of(viewer.layers[0])
+    folder = sample_data_dir() / "guv"
+    expected = lfa.load(folder / GUV[0], white=folder / GUV[1], dark=folder / GUV[2])
+    np.testing.assert_array_equal(lf.data, expected.data)
+
+
+def test_brick_room_sample_is_the_synthetic_scene(make_napari_viewer):
+    from napari_lfalias._napari._sample_data import brick_room
+    from napari_lfalias.synthetic import brick_room as make_scene
+
+    data, kwargs, layer_type = brick_room(n_views=5, size=64)[0]
+    scene = make_scene(n_views=5, size=64, seed=0)
+    assert layer_type == "image" and kwargs["rgb"]
+    np.testing.assert_array_equal(data, scene.lightfield.data)
+    viewer = make_napari_viewer()
+    layer = viewer.add_image(data, **kwargs)
+    assert lightfield_of(layer) is kwargs["metadata"]["lightfield"]
+
+
+@pytest.mark.slow
+def test_full_size_brick_room_sample_opens(make_napari_viewer):
+    viewer = make_napari_viewer()
+    viewer.open_sample(PLUGIN, "brick_room")
+    lf = lightfield_of(viewer.layers[0])
+    assert lf.shape == (8, 8, 512, 512, 3)

@@ -61,7 +61,7 @@ def save_figure(fig, out, name):
 
 def figure_sweep(plt, slopes, sweep, fractions, chosen):
     picks = np.unique(np.linspace(0, len(slopes) - 1, 5).round().astype(int))
-    fig, axes = plt.subplots(1, len(picks) + 1, figsize=(3 * (len(picks) + 1), 3.2))
+    fig, axes = plt.subplots(1, len(picks) + 1, figsize=(3 * (len(picks) + 1), 3.2), layout="constrained")
     for ax, i in zip(axes, picks):
         ax.imshow(as_display(sweep[i].compute()), cmap="gray")
         ax.set_title(f"slope {slopes[i]:.2f}")
@@ -75,7 +75,7 @@ def figure_sweep(plt, slopes, sweep, fractions, chosen):
 
 
 def figure_detection(plt, image, detection, threshold):
-    fig, axes = plt.subplots(1, 3, figsize=(10, 3.6))
+    fig, axes = plt.subplots(1, 3, figsize=(10, 3.6), layout="constrained")
     axes[0].imshow(as_display(image), cmap="gray")
     axes[0].set_title("refocused")
     shown = axes[1].imshow(detection.cv, cmap="magma", vmin=0, vmax=4 * threshold)
@@ -94,7 +94,7 @@ def figure_reduction(plt, image, result, reference):
               ("level l*", result.level)]
     if reference is not None:
         panels.append(("dense-aperture reference", as_display(reference)))
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels), 3.6))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels), 3.6), layout="constrained")
     for ax, (title, data) in zip(axes, panels):
         ax.imshow(data, cmap="viridis" if title.startswith("level") else "gray")
         ax.set_title(title)

@@ -1,9 +1,10 @@
 """Screenshot of the napari plugin at work, for the README: ``docs/screenshot.png``.
 
 Opens the synthetic brick room (the paper's Figure 6) in a napari viewer,
-docks the aliasing widget, focuses on the back wall and waits for the
-refocused image, the exact Cv map and the aliasing mask, then saves the
-whole window.
+docks the aliasing widget, focuses on the front of the cube (as in
+Figure 6 b2) and waits for the refocused image, the exact Cv map and the
+aliasing mask of the brick wall behind it (T = 0.01), then saves the whole
+window with the three side by side.
 
 Run (from the repository root)::
 
@@ -20,15 +21,16 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "docs" / "screenshot.png"
+#: T for the picture: below the paper's 0.02, so the mask shows where the brick
+#: wall's exact Cv is highest (at 0.02 only a few border pixels pass).
+THRESHOLD = 0.01
 
 
-def _far_slope(lf, low, high):
-    """A slope to focus on: the background (the most common disparity), where bricks alias."""
-    for key in ("disparity", "gt_disparity", "disparity_gt"):
-        if lf.meta.get(key) is not None:
-            disparity = np.asarray(lf.meta[key], dtype=np.float64)
-            return float(np.clip(np.round(np.median(disparity), 2), low, high))
-    return float(np.round(low + 0.25 * (high - low), 2))
+def _cube_slope(lf, low, high):
+    """Focus on the cube's front face (Figure 6 b2): the brick wall behind it aliases."""
+    layers = lf.meta.get("layers_disparity") or {}
+    slope = layers.get("cube_front", high)
+    return float(np.clip(slope, low, high))
 
 
 def make_screenshot(output=OUTPUT, size=384, overwrite=False):
@@ -42,13 +44,14 @@ def make_screenshot(output=OUTPUT, size=384, overwrite=False):
     from napari_lfalias._napari._widget import AliasingWidget
 
     viewer = napari.Viewer(show=True, title="napari-lfalias")
-    viewer.window.resize(1500, 900)
+    viewer.window.resize(1500, 640)
     data, kwargs, _ = brick_room(n_views=8, size=size)[0]
     viewer.add_image(data, **kwargs)
     widget = AliasingWidget(viewer)
     viewer.window.add_dock_widget(widget, name="Refocus and aliasing", area="right")
     lf = kwargs["metadata"]["lightfield"]
-    slope = _far_slope(lf, widget.focus_slider.minimum(), widget.focus_slider.maximum())
+    slope = _cube_slope(lf, widget.focus_slider.minimum(), widget.focus_slider.maximum())
+    widget.threshold_slider.setValue(THRESHOLD)
     widget.focus_slider.setValue(slope)
 
     def ready():
@@ -56,9 +59,13 @@ def make_screenshot(output=OUTPUT, size=384, overwrite=False):
         return layer is not None and layer.metadata["lfalias_params"]["slope"] == widget.slope
 
     run_event_loop_until(ready, timeout_s=120)
+    # refocused image, Cv map and mask side by side (napari's grid mode)
     viewer.layers["brick room"].visible = False
-    find_output_layer(viewer, "mask").visible = False
-    viewer.layers.selection.active = find_output_layer(viewer, "cv")
+    cv = find_output_layer(viewer, "cv")
+    cv.blending = "translucent"
+    viewer.layers.selection.active = cv
+    viewer.grid.enabled = True
+    viewer.grid.shape = (1, 3)
     viewer.reset_view()
     deadline = time.perf_counter() + 0.5  # let the canvas draw the new view
     run_event_loop_until(lambda: time.perf_counter() > deadline)

@@ -39,3 +39,16 @@ def write_plane(path, **kw):
 def temporaries(folder):
     """Every temporary name left anywhere under ``folder``."""
     return [p for p in Path(folder).rglob("*") if io_write.is_temporary(p)]
+
+
+def write_views_folder(folder, lf):
+    """Write a one-channel ``lf`` as a camera-array folder of 16-bit PNGs named ``view_RR_CC.png``."""
+    import imageio.v3 as iio
+
+    folder = Path(folder)
+    folder.mkdir(parents=True)
+    for u in range(lf.grid_shape[0]):
+        for v in range(lf.grid_shape[1]):
+            pixels = np.round(np.clip(lf.data[u, v, :, :, 0], 0, 1) * 65535).astype(np.uint16)
+            iio.imwrite(folder / f"view_{u:02d}_{v:02d}.png", pixels)
+    return folder

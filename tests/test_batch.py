@@ -18,7 +18,7 @@ from napari_lfalias.batch import MARKER_DIR, plan_batch, run_batch, run_job  # n
 from napari_lfalias.cli import main  # noqa: E402
 from napari_lfalias.errors import OutputExistsError, ParameterError  # noqa: E402
 
-from _cli_scenes import plane_lightfield, temporaries  # noqa: E402
+from _cli_scenes import plane_lightfield, temporaries, write_views_folder  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -68,6 +68,28 @@ def test_convert_batch_matches_the_serial_result(client, tmp_path):
         np.testing.assert_array_equal(io_write.read_lightfield(tmp_path / "out" / name).data,
                                       io_write.read_lightfield(inputs[i]).data)
     assert temporaries(tmp_path) == []
+
+
+def test_convert_batch_of_view_folders(client, tmp_path):
+    pytest.importorskip("napari_lfalias.decoders.camera_array")
+    import napari_lfalias as lfa
+
+    folders = [write_views_folder(tmp_path / "in" / f"scene{i}", plane_lightfield(disparity=i - 1, seed=i))
+               for i in range(3)]
+    report = run_batch(folders, tmp_path / "out", "convert", client=client)
+    assert len(report.done) == 3
+    for i, folder in enumerate(folders):
+        converted = io_write.read_lightfield(tmp_path / "out" / f"scene{i}.tif")
+        expected = lfa.load(folder)
+        np.testing.assert_array_equal(converted.data, expected.data)
+        np.testing.assert_array_equal(converted.positions, expected.positions)
+    # A new view in one folder changes its key: only that folder is converted again.
+    lf = plane_lightfield(disparity=1, seed=0)
+    (folders[0] / "view_00_00.png").unlink()
+    write_views_folder(tmp_path / "tmp_views", lf)
+    (tmp_path / "tmp_views" / "view_00_00.png").rename(folders[0] / "view_00_00.png")
+    again = run_batch(folders, tmp_path / "out", "convert", client=client)
+    assert again.done == [str(folders[0])] and len(again.skipped) == 2
 
 
 def test_a_rerun_skips_finished_outputs_and_redoes_changed_inputs(client, tmp_path):

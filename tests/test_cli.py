@@ -33,6 +33,12 @@ def run(capsys, *argv):
     return status, out, err
 
 
+def needs(*modules):
+    """Skip unless these parts of the numeric core are installed (they are written concurrently)."""
+    for module in modules:
+        pytest.importorskip(f"napari_lfalias.{module}")
+
+
 def assert_one_line_error(err, *words):
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -85,6 +91,20 @@ def test_refocus_tiff_matches_the_api_and_is_sharp_at_the_plane(capsys, plane, t
     centre = lf.data[2, 2, 4:-4, 4:-4, 0]
     np.testing.assert_allclose(image[4:-4, 4:-4], centre, atol=1e-6)
     assert tifffile.TiffFile(out).shaped_metadata[0]["slope"] == 1.0
+
+
+def test_refocus_and_info_on_a_folder_of_views(capsys, tmp_path):
+    needs("decoders.camera_array")
+    from _cli_scenes import plane_lightfield, write_views_folder
+
+    folder = write_views_folder(tmp_path / "views", plane_lightfield(disparity=-1, seed=5))
+    out = tmp_path / "r.tif"
+    assert run(capsys, "refocus", folder, "--slope", -1, "-o", out)[0] == 0
+    np.testing.assert_array_equal(tifffile.imread(out), lfa.refocus(lfa.load(folder), -1.0)[..., 0])
+    status, stdout, _ = run(capsys, "info", folder)
+    assert status == 0
+    assert "folder of views" in stdout and "5 x 5" in stdout
+    assert "-1 .. -1 px per view step (estimated" in stdout
 
 
 def test_refocus_png_is_an_8bit_preview(capsys, plane, tmp_path):
@@ -145,6 +165,54 @@ def test_a_failed_write_leaves_no_partial_file(capsys, plane, tmp_path, monkeypa
     assert_one_line_error(err, "No space left on device")
     assert not out.exists()
     assert temporaries(tmp_path) == []
+
+
+# -- detect and reduce -------------------------------------------------------------
+
+
+def test_detect_writes_the_cv_map_and_mask_of_the_api(capsys, plane, tmp_path):
+    needs("detect")
+    path, lf = plane
+    out = tmp_path / "cv.tif"
+    argv = ["--gamma", 0.3, "--n", 20, "--threshold", 0.05, "--method", "monte_carlo", "--seed", 4]
+    status, stdout, _ = run(capsys, "detect", path, "--slope", 0, "-o", out, *argv)
+    assert status == 0
+    expected = lfa.detect_aliasing(lf, 0.0, gamma=0.3, n_patterns=20, threshold=0.05, method="monte_carlo", seed=4)
+    np.testing.assert_array_equal(tifffile.imread(out), expected.cv)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "cv_mask.tif").astype(bool), expected.mask)
+    assert f"aliased pixels: {100 * expected.mask.mean():.2f} %" in stdout
+    metadata = tifffile.TiffFile(out).shaped_metadata[0]
+    assert metadata["n_patterns"] == 20 and metadata["method"] == "monte_carlo"
+    # Off the plane the random texture aliases; on it nothing does.
+    assert expected.mask.mean() > 0.5
+    assert run(capsys, "detect", path, "--slope", 1, "-o", tmp_path / "on.png")[0] == 0
+    assert iio.imread(tmp_path / "on_mask.png")[4:-4, 4:-4].max() == 0
+
+
+def test_reduce_writes_the_image_levels_and_cv_of_the_api(capsys, plane, tmp_path):
+    needs("reduce")
+    path, lf = plane
+    out = tmp_path / "reduced.tif"
+    status, _, _ = run(capsys, "reduce", path, "--slope", 0, "--levels", 2, "-o", out)
+    assert status == 0
+    expected = lfa.reduce_aliasing(lf, 0.0, max_level=2)
+    np.testing.assert_array_equal(tifffile.imread(out), expected.image[..., 0])
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "reduced_levels.tif"), expected.level)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "reduced_cv.tif"), expected.cv)
+    assert run(capsys, "reduce", path, "--slope", 0, "-o", tmp_path / "reduced.png", "--auto-contrast")[0] == 0
+    assert iio.imread(tmp_path / "reduced_levels.png").max() > 0
+
+
+@pytest.mark.parametrize(
+    "option, value, word",
+    [("--gamma", 1.5, "gamma"), ("--n", 1, "n_patterns"), ("--threshold", -1, "threshold"), ("--levels", -1, "max_level")],
+)
+def test_out_of_range_detection_options_are_one_line_errors(capsys, plane, tmp_path, option, value, word):
+    needs("reduce")
+    status, _, err = run(capsys, "reduce", plane[0], "--slope", 0, "-o", tmp_path / "r.png", option, value)
+    assert status == 1
+    assert_one_line_error(err, word)
+    assert list(tmp_path.glob("r*.png")) == []
 
 
 # -- convert and info ------------------------------------------------------------
@@ -248,6 +316,7 @@ def guv(lf_data):
 
 
 def test_convert_a_lenslet_capture_and_reuse_its_grid(capsys, guv, tmp_path):
+    needs("decoders.lenslet")
     views, grid = tmp_path / "guv.tif", tmp_path / "grid.json"
     status, out, err = run(capsys, "convert", guv["raw"], "--white", guv["white"], "--dark", guv["dark"],
                            "-o", views, "--save-grid", grid)
@@ -269,6 +338,7 @@ def test_convert_a_lenslet_capture_and_reuse_its_grid(capsys, guv, tmp_path):
 
 
 def test_a_lenslet_capture_without_white_is_a_clear_error(capsys, guv, tmp_path):
+    needs("decoders.lenslet")
     status, _, err = run(capsys, "refocus", guv["raw"], "--slope", 0, "-o", tmp_path / "r.png")
     assert status == 1
     assert_one_line_error(err, "Lightfield_GUVExperim1.tif")
@@ -276,7 +346,11 @@ def test_a_lenslet_capture_without_white_is_a_clear_error(capsys, guv, tmp_path)
 
 
 def test_demo_runs_the_bundled_capture_end_to_end(capsys, tmp_path):
-    from napari_lfalias._cli.demo import DEMO_FILES
+    needs("decoders.lenslet", "detect", "reduce")
+    from napari_lfalias._cli.demo import DEMO_FILES, guv_files
+
+    if guv_files() is None:
+        pytest.fail("the bundled GUV sample (sample_data/guv) is missing")
 
     out = tmp_path / "demo"
     start = time.perf_counter()
@@ -304,6 +378,7 @@ def test_demo_runs_the_bundled_capture_end_to_end(capsys, tmp_path):
 
 
 def test_demo_falls_back_to_the_synthetic_scene_and_says_so(capsys, tmp_path, monkeypatch):
+    needs("synthetic", "detect", "reduce")
     from napari_lfalias._cli import demo
 
     monkeypatch.setattr(demo, "guv_files", lambda: None)

@@ -28,19 +28,32 @@ def guv(lf_data):
     return [lf_data / "napari_lf_guv" / name for name in GUV]
 
 
+def _finish(qtbot, widget):
+    """Wait for the widget's job; fail with its message if it failed."""
+    qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
+    assert "failed" not in widget.status.text(), widget.status.text()
+
+
+def _conversion_widget(viewer, raw=None, white=None, dark=None):
+    widget = LensletConversionWidget(viewer)
+    viewer.window.add_dock_widget(widget)
+    widget.raw_field.set_path(raw)
+    widget.white_field.set_path(white)
+    widget.dark_field.set_path(dark)
+    return widget
+
+
 def test_calibration_draws_the_fitted_microlens_centres(make_napari_viewer, qtbot, guv):
     from napari_lfalias.decoders import calibrate
 
     raw, white, dark = guv
     viewer = make_napari_viewer()
-    widget = LensletConversionWidget(viewer)
-    viewer.window.add_dock_widget(widget)
-    widget.raw_field.set_path(raw)
+    widget = _conversion_widget(viewer, raw)
     widget._guess_frames()  # fills white and dark from the names beside the raw image
     assert widget.white_field.path() == white
     assert widget.dark_field.path() == dark
     widget.calibrate()
-    qtbot.waitUntil(lambda: _role_layers(viewer, "grid"), timeout=TIMEOUT_MS)
+    _finish(qtbot, widget)
     points = _role_layers(viewer, "grid")[0]
     expected = grid_centres(calibrate(white, dark=dark))
     np.testing.assert_allclose(points.data, expected, atol=1e-6)
@@ -59,12 +72,9 @@ def test_calibration_draws_the_fitted_microlens_centres(make_napari_viewer, qtbo
 def test_conversion_adds_the_decoded_lightfield(make_napari_viewer, qtbot, guv):
     raw, white, dark = guv
     viewer = make_napari_viewer()
-    widget = LensletConversionWidget(viewer)
-    widget.raw_field.set_path(raw)
-    widget.white_field.set_path(white)
-    widget.dark_field.set_path(dark)
+    widget = _conversion_widget(viewer, raw, white, dark)
     widget.convert()
-    qtbot.waitUntil(lambda: any(lightfield_of(layer) for layer in viewer.layers), timeout=TIMEOUT_MS)
+    _finish(qtbot, widget)
     layer = next(layer for layer in viewer.layers if lightfield_of(layer) is not None)
     expected = lfa.load(raw, white=white, dark=dark)
     np.testing.assert_array_equal(lightfield_of(layer).data, expected.data)
@@ -72,17 +82,29 @@ def test_conversion_adds_the_decoded_lightfield(make_napari_viewer, qtbot, guv):
     assert widget.shutdown()
 
 
-def test_missing_white_image_is_reported_not_raised(make_napari_viewer, qtbot, tmp_path):
+def test_missing_inputs_are_reported_not_raised(make_napari_viewer, qtbot, tmp_path):
     viewer = make_napari_viewer()
-    widget = LensletConversionWidget(viewer)
-    widget.raw_field.set_path(tmp_path / "raw.tif")
+    widget = _conversion_widget(viewer, tmp_path / "raw.tif")
     widget.convert()
     assert "white" in widget.status.text()
     assert widget.convert_button.isEnabled()
     widget.white_field.set_path(tmp_path / "missing_white.tif")
     widget.calibrate()
+    assert "missing_white.tif: no such file" in widget.status.text()
+    assert widget.calibrate_button.isEnabled() and not widget.jobs.busy()
+    assert len(viewer.layers) == 0
+
+
+def test_unreadable_white_image_fails_in_the_worker_with_its_name(make_napari_viewer, qtbot, tmp_path):
+    bad = tmp_path / "broken_white.tif"
+    bad.write_bytes(b"II*\x00 not really a tiff")
+    viewer = make_napari_viewer()
+    widget = _conversion_widget(viewer, white=bad)
+    widget.calibrate()
     qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
-    assert "missing_white.tif" in widget.status.text()
+    assert "calibrate failed" in widget.status.text()
+    assert "broken_white.tif" in widget.status.text()
+    assert widget.calibrate_button.isEnabled()
     assert len(viewer.layers) == 0
 
 

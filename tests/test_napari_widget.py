@@ -22,10 +22,31 @@ TIMEOUT_MS = 20000
 
 
 def _scene(n_views=5, size=64, seed=0):
-    """A small brick room (with its ground-truth disparity in the metadata)."""
-    from napari_lfalias.synthetic import brick_room
+    """Two textured planes: a background at disparity -1, a square in front at +1.5.
 
-    return brick_room(n_views=n_views, size=size, seed=seed).lightfield
+    Each view is rendered by sampling the textures where the convention
+    says a point of disparity d at pixel p shows (``p + d * position``);
+    the ground-truth disparity map is in the metadata.
+    """
+    from scipy import ndimage
+
+    rng = np.random.default_rng(seed)
+    background = ndimage.gaussian_filter(rng.random((size, size, 3)), (0.7, 0.7, 0))
+    front = ndimage.gaussian_filter(rng.random((size, size, 3)), (1.5, 1.5, 0))
+    inside = np.zeros((size, size), bool)
+    inside[size // 4 : 3 * size // 4, size // 4 : 3 * size // 4] = True
+    positions = lfa.regular_positions(n_views, n_views)
+    views = np.empty((n_views, n_views, size, size, 3), np.float32)
+    for u in range(n_views):
+        for v in range(n_views):
+            qy, qx = positions[u, v]
+            # the view sees the scene point of centre pixel p at p + d q: sample back at p - d q
+            bg = ndimage.shift(background, (-1.0 * qy, -1.0 * qx, 0), order=1, mode="nearest")
+            fg = ndimage.shift(front, (1.5 * qy, 1.5 * qx, 0), order=1, mode="nearest")
+            mask = ndimage.shift(inside.astype(float), (1.5 * qy, 1.5 * qx), order=0) > 0.5
+            views[u, v] = np.where(mask[..., None], fg, bg)
+    disparity = np.where(inside, 1.5, -1.0).astype(np.float32)
+    return lfa.LightField(views, positions, {"source": "two planes", "disparity": disparity})
 
 
 def _add(viewer, lf, name="lf"):
@@ -33,9 +54,20 @@ def _add(viewer, lf, name="lf"):
     return viewer.add_image(data, **kwargs)
 
 
+#: Widgets of the running test (so a wait can fail fast on a job's error).
+_OPEN_WIDGETS = []
+
+
+@pytest.fixture(autouse=True)
+def _forget_widgets():
+    yield
+    _OPEN_WIDGETS.clear()  # no reference may keep a closed viewer alive
+
+
 def _open_widget(viewer, qtbot):
     widget = AliasingWidget(viewer)
     viewer.window.add_dock_widget(widget, name="aliasing")
+    _OPEN_WIDGETS[:] = [w for w in _OPEN_WIDGETS if w.viewer is viewer] + [widget]
     return widget
 
 
@@ -45,7 +77,16 @@ def _params(viewer, role):
 
 
 def _wait_for(qtbot, viewer, role, **expected):
+    """Wait for the output layer of ``role`` computed with ``expected`` parameters.
+
+    Fails at once if a widget job reported an error instead.
+    """
+    widgets = [w for w in _OPEN_WIDGETS if w.viewer is viewer]
+
     def done():
+        for widget in widgets:
+            if "failed" in widget.status.text():
+                pytest.fail(widget.status.text(), pytrace=False)
         params = _params(viewer, role)
         return params is not None and all(params.get(k) == v for k, v in expected.items())
 
@@ -93,21 +134,38 @@ def test_focus_change_gives_the_api_refocus_and_exact_cv(scene_viewer, qtbot):
     assert sorted(r for r in roles if r) == ["cv", "mask", "refocus"]
 
 
+def test_a_drag_of_the_focus_ends_on_its_last_slope(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    shown = []
+    widget.outputs_updated.connect(lambda role, params: shown.append((role, params["slope"])))
+    for value in np.linspace(-0.9, 1.3, 12):  # faster than the worker can follow
+        widget.focus_slider.setValue(float(value))
+    slope = widget.slope
+    refocused = _wait_for(qtbot, viewer, "refocus", slope=slope)
+    _wait_for(qtbot, viewer, "cv", slope=slope)
+    _idle(qtbot, widget)
+    np.testing.assert_allclose(refocused.data, lfa.refocus(lf, slope), atol=1e-5)
+    # superseded slopes were dropped, not all queued up and shown in turn
+    assert len({s for role, s in shown if role == "refocus"}) < 12
+    assert shown[-1][1] == slope
+
+
 def test_threshold_rethresholds_without_recomputing(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
     slope = widget.slope
     cv_layer = _wait_for(qtbot, viewer, "cv", slope=slope)
     _idle(qtbot, widget)
-    cv_before = cv_layer.data
+    cv_values = cv_layer.data.copy()
     new_threshold = 0.005 if widget.params().threshold > 0.01 else 0.05
     widget.threshold_slider.setValue(new_threshold)
     threshold = widget.params().threshold
     mask = find_output_layer(viewer, "mask")
-    # synchronous: no worker was started, the mask changed at once
+    # synchronous: no worker was started, the mask changed at once, Cv was kept
     assert not widget.jobs.busy()
     assert mask.metadata["lfalias_params"]["threshold"] == threshold
-    np.testing.assert_array_equal(mask.data.astype(bool), cv_before > threshold)
-    assert find_output_layer(viewer, "cv").data is cv_before
+    np.testing.assert_array_equal(mask.data.astype(bool), cv_values > threshold)
+    np.testing.assert_array_equal(find_output_layer(viewer, "cv").data, cv_values)
+    assert cv_layer.metadata["lfalias_params"]["threshold"] == threshold
 
 
 def test_monte_carlo_matches_the_api_with_the_same_seed(scene_viewer, qtbot):
@@ -139,6 +197,20 @@ def test_gamma_change_reuses_the_shifted_stack(scene_viewer, qtbot):
     np.testing.assert_allclose(cv.data, expected.cv, rtol=1e-4, atol=1e-5)
 
 
+def test_gamma_change_with_the_exact_method_reuses_the_moments(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    slope = widget.slope
+    _wait_for(qtbot, viewer, "cv", slope=slope, gamma=0.2)
+    _idle(qtbot, widget)
+    kept = widget.session._moments
+    widget.gamma_spin.setValue(0.4)
+    cv = _wait_for(qtbot, viewer, "cv", slope=slope, gamma=0.4)
+    assert widget.session._moments is kept  # no view was shifted again
+    expected = lfa.detect_aliasing(lf, slope, gamma=0.4, method="analytic",
+                                   threshold=widget.params().threshold)
+    np.testing.assert_allclose(cv.data, expected.cv, rtol=1e-4, atol=1e-5)
+
+
 def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewer, qtbot):
     from qtpy.QtCore import QTimer
 
@@ -161,9 +233,7 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     assert sum(ticks_while_busy) >= 2  # the GUI thread ticked while the worker reduced
 
     params = widget.params()
-    expected = lfa.reduce_aliasing(lf, widget.slope, gamma=params.gamma, n_patterns=params.n_patterns,
-                                   threshold=params.threshold, max_level=params.max_level,
-                                   method=params.method, seed=params.seed)
+    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.api_kwargs())
     np.testing.assert_allclose(fused.data, expected.image, atol=1e-4)
     level = find_output_layer(viewer, "level")
     np.testing.assert_array_equal(level.data, expected.level)
@@ -236,3 +306,35 @@ def test_no_worker_threads_outlive_the_widget(make_napari_viewer, qtbot):
     assert widget.shutdown()
     assert QThreadPool.globalInstance().waitForDone(TIMEOUT_MS)
     assert QThreadPool.globalInstance().activeThreadCount() == 0
+
+
+def test_lazy_lightfield_is_read_in_the_worker(make_napari_viewer, qtbot, tmp_path):
+    from napari_lfalias.io_write import write_lightfield
+
+    lf = _scene(n_views=3, size=32)
+    path = write_lightfield(tmp_path / "scene.zarr", lf)
+    viewer = make_napari_viewer()
+    layer = viewer.open(path, plugin="napari-lfalias")[0]
+    assert layer.metadata["lightfield"].is_lazy
+    widget = _open_widget(viewer, qtbot)
+    # the layer's light field stays lazy: the session reads its own copy, in the worker
+    assert widget.session.source_lf is layer.metadata["lightfield"]
+    refocused = _wait_for(qtbot, viewer, "refocus", slope=widget.slope)
+    np.testing.assert_allclose(refocused.data, lfa.refocus(lf, widget.slope), atol=1e-5)
+    assert layer.metadata["lightfield"].is_lazy
+    assert widget.shutdown()
+
+
+def test_threshold_slider_is_logarithmic(qtbot):
+    from napari_lfalias._napari._controls import LogSlider
+
+    slider = LogSlider(1e-4, 1.0, 0.02, steps=400)
+    qtbot.addWidget(slider)
+    assert slider.value() == 0.02  # set values are kept exactly
+    seen = []
+    slider.valueChanged.connect(seen.append)
+    for position, expected in ((0, 1e-4), (100, 1e-3), (200, 1e-2), (400, 1.0)):
+        slider.slider.setValue(position)
+        assert slider.value() == pytest.approx(expected, rel=1e-3)
+    assert seen == pytest.approx([1e-4, 1e-3, 1e-2, 1.0], rel=1e-3)
+    assert slider.label.text() == "1"

@@ -134,3 +134,15 @@ def test_aliasing_by_slope_is_least_on_the_plane():
     assert fractions[0] > 0.5 and fractions[-1] > 0.5
     same = aliasing_by_slope(lf, slopes=[1.0, 0.5], threshold=0.02)[1]
     np.testing.assert_array_equal(same, fractions[[2, 0]])
+
+
+def test_disparity_range_prefers_stated_then_true_then_estimated():
+    from napari_lfalias.sweep import disparity_range
+
+    lf = plane_lightfield(n=5, size=48, disparity=1, seed=6)
+    assert disparity_range(lf) == (1.0, 1.0, "metadata")
+    lf.meta.pop("disparity_range")
+    lf.meta["disparity"] = np.array([[-0.5, np.nan], [0.75, 0.0]])
+    assert disparity_range(lf) == (-0.5, 0.75, "ground truth")
+    lf.meta.pop("disparity")
+    assert disparity_range(lf) == (1.0, 1.0, "estimated")

@@ -6,19 +6,44 @@ weight, and every average divides by the summed weight, so borders neither
 darken nor brighten. For one slope the views are resampled once into a
 :class:`ShiftedStack`; a refocus from any subset of views is then a weighted
 mean of the stack, never a new resampling.
+
+The work is done by fused kernels (:mod:`napari_lfalias._kernels`) that read
+each view once and store the shifted views only when asked: a refocus of an
+8x8x512x512x3 light field costs about three times one plain sum over its
+views (``benchmarks/results/refocus.md``).
 """
 
 from __future__ import annotations
 
+import importlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import _validate
-from .lightfield import LightField
 from .errors import ParameterError
+from .lightfield import LightField
 
 __all__ = ["ShiftedStack", "ViewMoments", "shift_views", "refocus", "view_moments", "bilinear_shift"]
+
+#: Stand-in for "no per-sample weights" (the kernels take one array type).
+_NO_WEIGHTS = np.ones((1, 1, 1), np.float32)
+
+#: One kernel call at a time: each already uses every core, and numba's
+#: fallback thread pool (workqueue) aborts on concurrent calls.
+_KERNEL_LOCK = threading.Lock()
+
+
+def _run(name, *args):
+    """Call kernel ``name`` of :mod:`._kernels` (imported on first use: numba loads in ~0.15 s)."""
+    kernels = importlib.import_module("._kernels", __package__)
+    with _KERNEL_LOCK:
+        getattr(kernels, name)(*args)
+
+
+def _split_shifts(shifts):
+    return importlib.import_module("._kernels", __package__).split_shifts(shifts)
 
 
 def _as_lightfield(lf):
@@ -27,45 +52,24 @@ def _as_lightfield(lf):
     return lf
 
 
-def _taps(shift):
-    """Integer offsets and bilinear weights of a sub-pixel ``shift`` (zero weights dropped)."""
-    base = int(np.floor(shift))
-    frac = float(shift - base)
-    taps = [(base, 1.0 - frac), (base + 1, frac)]
-    return [(offset, weight) for offset, weight in taps if weight > 1e-7]
-
-
-def _overlap(n, offset):
-    """Destination and source slices of an integer shift ``dst[i] = src[i + offset]``."""
-    start = max(0, -offset)
-    stop = min(n, n - offset)
-    if stop <= start:
-        return None, None
-    return slice(start, stop), slice(start + offset, stop + offset)
-
-
-def _shift_axis(image, shift, axis):
-    """Linear interpolation of ``image`` at ``index + shift`` along ``axis``, zero outside."""
-    out = np.zeros_like(image)
-    n = image.shape[axis]
-    for offset, weight in _taps(shift):
-        dst, src = _overlap(n, offset)
-        if dst is None:
-            continue
-        index_dst = [slice(None)] * image.ndim
-        index_src = [slice(None)] * image.ndim
-        index_dst[axis], index_src[axis] = dst, src
-        index_dst, index_src = tuple(index_dst), tuple(index_src)
-        if weight == 1.0:
-            out[index_dst] += image[index_src]
-        else:
-            out[index_dst] += image[index_src] * np.float32(weight)
+def _normalise(num, den):
+    """``num / den[..., None]`` where ``den > 0``, else 0; float32."""
+    out = np.zeros(num.shape, np.float32)
+    valid = den > 0
+    np.divide(num, den[..., None], out=out, where=valid[..., None])
     return out
 
 
-def _profile(n, shift):
-    """Summed bilinear tap weight at each index of a length-``n`` axis (1 inside, < 1 near borders)."""
-    return _shift_axis(np.ones(n, np.float32), shift, 0)
+def _kernel_inputs(views, sample_weights, shifts):
+    """Arguments shared by the kernels: rows ``(n, Y, X*C)``, channels, weights, split shifts."""
+    n, n_rows, n_cols, n_ch = views.shape
+    flat = np.ascontiguousarray(views).reshape(n, n_rows, n_cols * n_ch)
+    if sample_weights is None:
+        weights, has_weight = _NO_WEIGHTS, False
+    else:
+        weights, has_weight = np.ascontiguousarray(sample_weights, np.float32), True
+    base, frac = _split_shifts(shifts)
+    return flat, n_ch, weights, has_weight, base, frac
 
 
 def bilinear_shift(image, dy, dx):
@@ -73,22 +77,30 @@ def bilinear_shift(image, dy, dx):
 
     Parameters
     ----------
-    image : ndarray, shape (Y, X, ...)
-        The image (any trailing channel axes).
+    image : ndarray, shape (Y, X) or (Y, X, C)
+        The image.
     dy, dx : float
         The sub-pixel shift.
 
     Returns
     -------
     sampled : ndarray, like ``image``
-        The tap-weighted sum; divide by ``bilinear_weight(shape, dy, dx)``
-        to normalise near borders.
-    weight : ndarray, shape (Y, X), float32
+        The tap-weighted sum (float32, float64 for float64 input); divide
+        by ``weight`` to normalise near borders.
+    weight : ndarray, shape (Y, X)
         The summed weight of the taps that fell inside the image.
     """
-    sampled = _shift_axis(_shift_axis(image, dx, 1), dy, 0)
-    weight = np.outer(_profile(image.shape[0], dy), _profile(image.shape[1], dx))
-    return sampled, weight
+    image = np.asarray(image)
+    if image.ndim not in (2, 3) or min(image.shape) < 1:
+        raise ParameterError(f"image must have shape (Y, X) or (Y, X, C), got shape {image.shape}")
+    dy = _validate.finite_float("dy", dy)
+    dx = _validate.finite_float("dx", dx)
+    dtype = np.float64 if image.dtype == np.float64 else np.float32
+    views = image.astype(dtype, copy=False).reshape((1,) + image.shape[:2] + (-1,))
+    num = np.empty(views.shape[1:], dtype)
+    den = np.empty(views.shape[1:3], dtype)
+    _run("refocus_sum", *_kernel_inputs(views, None, [[dy, dx]]), np.ones(1), num, den)
+    return num.reshape(image.shape), den
 
 
 @dataclass
@@ -119,13 +131,19 @@ class ShiftedStack:
     def n_views(self):
         return self.values.shape[0]
 
+    def _arrays(self):
+        """Values as rows ``(n, Y, X*C)`` and weights ``(n, Y, X)``, contiguous float32."""
+        values = np.ascontiguousarray(self.values, np.float32)
+        return values.reshape(values.shape[:2] + (-1,)), np.ascontiguousarray(self.weights, np.float32)
+
     def mean(self, view_weights=None):
         """Weighted mean over the views: the refocused image ``(Y, X, C)``.
 
         Parameters
         ----------
         view_weights : ndarray, shape (n,), optional
-            A weight per view (for example 0/1 for a sampling pattern).
+            A non-negative weight per view (for example 0/1 for a sampling
+            pattern).
 
         Returns
         -------
@@ -133,21 +151,19 @@ class ShiftedStack:
             ``sum_i a_i w_i x_i / sum_i a_i w_i`` per pixel; 0 where no view
             sees the pixel.
         """
-        w = self.weights
-        if view_weights is not None:
-            view_weights = np.asarray(view_weights, np.float32)
-            w = w * view_weights[:, None, None]
-        num = np.einsum("nyx,nyxc->yxc", w, self.values, optimize=True)
-        den = w.sum(axis=0)
-        return _normalise(num, den)
-
-
-def _normalise(num, den):
-    """``num / den[..., None]`` where ``den > 0``, else 0; float32."""
-    out = np.zeros(num.shape, np.float32)
-    valid = den > 0
-    np.divide(num, den[..., None], out=out, where=valid[..., None])
-    return out
+        n = self.n_views
+        if view_weights is None:
+            view_weights = np.ones(n)
+        view_weights = np.asarray(view_weights, np.float64)
+        if view_weights.shape != (n,) or not np.all(np.isfinite(view_weights)) or view_weights.min() < 0:
+            raise ParameterError(
+                f"view_weights must hold {n} finite non-negative numbers (one per view), "
+                f"got an array of shape {view_weights.shape}"
+            )
+        values, weights = self._arrays()
+        out = np.empty(self.values.shape[1:], np.float32)
+        _run("stack_mean", values, self.values.shape[3], weights, view_weights, out)
+        return out
 
 
 def _shift_args(lf, slope):
@@ -158,20 +174,8 @@ def _shift_args(lf, slope):
     return lf, slope
 
 
-def _iter_shifted(lf, slope):
-    """Yield ``(i, premultiplied sample, weight)`` for every view of ``lf``."""
-    views = lf.views()
-    sample_weights = lf.flat_weights()
-    shifts = slope * lf.flat_positions()
-    for i, (dy, dx) in enumerate(shifts):
-        view = views[i]
-        if sample_weights is None:
-            sampled, weight = bilinear_shift(view, dy, dx)
-        else:
-            w = sample_weights[i]
-            sampled, _ = bilinear_shift(view * w[..., None], dy, dx)
-            weight, _ = bilinear_shift(w, dy, dx)
-        yield i, sampled, weight
+def _inputs(lf, slope):
+    return _kernel_inputs(lf.views(), lf.flat_weights(), slope * lf.flat_positions())
 
 
 def shift_views(lf, slope):
@@ -193,9 +197,7 @@ def shift_views(lf, slope):
     n = lf.n_views
     values = np.empty((n,) + lf.image_shape + (lf.n_channels,), np.float32)
     weights = np.empty((n,) + lf.image_shape, np.float32)
-    for i, sampled, weight in _iter_shifted(lf, slope):
-        values[i] = _normalise(sampled, weight)
-        weights[i] = weight
+    _run("shifted_stack", *_inputs(lf, slope), values, weights)
     return ShiftedStack(values, weights, slope, lf.flat_positions().copy())
 
 
@@ -223,11 +225,9 @@ def refocus(lf, slope):
     True
     """
     lf, slope = _shift_args(lf, slope)
-    num = np.zeros(lf.image_shape + (lf.n_channels,), np.float32)
-    den = np.zeros(lf.image_shape, np.float32)
-    for _, sampled, weight in _iter_shifted(lf, slope):
-        num += sampled
-        den += weight
+    num = np.empty(lf.image_shape + (lf.n_channels,), np.float32)
+    den = np.empty(lf.image_shape, np.float32)
+    _run("refocus_sum", *_inputs(lf, slope), np.ones(lf.n_views), num, den)
     return _normalise(num, den)
 
 
@@ -256,9 +256,10 @@ class ViewMoments:
 def view_moments(lf, slope, stack=None):
     """Mean and population variance across the shifted views, per pixel.
 
-    Deviations are taken from the mean (two passes over the stack), never
-    as ``E[x^2] - E[x]^2``, so float32 keeps its precision on data with a
-    large offset.
+    One pass of a weighted Welford update per pixel: deviations are taken
+    from the running mean (never ``E[x^2] - E[x]^2``) and summed in
+    float64, so float32 data with a large offset keep their precision. The
+    shifted views are not stored.
 
     Parameters
     ----------
@@ -267,24 +268,26 @@ def view_moments(lf, slope, stack=None):
     slope : float
         Disparity in focus.
     stack : ShiftedStack, optional
-        A stack already shifted for ``slope`` to reuse.
+        A stack already shifted for ``slope`` to reuse; ``lf`` is then not
+        read.
 
     Returns
     -------
     ViewMoments
     """
     if stack is None:
-        stack = shift_views(lf, slope)
-    w = stack.weights
-    weight_sum = w.sum(axis=0)
-    mean = stack.mean()
-    var_num = np.zeros_like(mean)
-    for i in range(stack.n_views):
-        dev = stack.values[i] - mean
-        dev *= dev
-        dev *= w[i][..., None]
-        var_num += dev
-    variance = _normalise(var_num, weight_sum)
-    np.maximum(variance, 0, out=variance)
-    count = (w > 0).sum(axis=0, dtype=np.int32)
+        lf, slope = _shift_args(lf, slope)
+        shape, n_ch = lf.image_shape, lf.n_channels
+    else:
+        shape, n_ch = stack.values.shape[1:3], stack.values.shape[3]
+    mean = np.empty(shape + (n_ch,), np.float32)
+    variance = np.empty_like(mean)
+    weight_sum = np.empty(shape, np.float32)
+    count = np.empty(shape, np.int32)
+    outputs = (mean, variance, weight_sum, count)
+    if stack is None:
+        _run("moments", *_inputs(lf, slope), *outputs)
+    else:
+        values, weights = stack._arrays()
+        _run("stack_moments", values, n_ch, weights, *outputs)
     return ViewMoments(mean, variance, weight_sum, count)

@@ -16,8 +16,10 @@ from . import _validate
 from .errors import ParameterError
 from .lightfield import LightField
 
-__all__ = ["refocus_sweep", "estimate_slope_range", "aliasing_by_slope", "SWEEP_KINDS"]
+__all__ = ["refocus_sweep", "disparity_range", "estimate_slope_range", "aliasing_by_slope", "SWEEP_KINDS"]
 
+#: How far (pixels per view step) a default sweep goes past the scene's disparities.
+SLOPE_PAD = 0.5
 #: What a sweep can hold per slope.
 SWEEP_KINDS = ("refocus", "cv", "mask")
 
@@ -190,6 +192,31 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=33, max_size=128, percentil
     return float(low), float(high)
 
 
+def disparity_range(lf):
+    """The range of disparities in ``lf``, and where it comes from.
+
+    In order: ``lf.meta["disparity_range"]`` (set by a decoder or a
+    synthetic scene), the range of a ground-truth map ``lf.meta["disparity"]``,
+    else :func:`estimate_slope_range`.
+
+    Returns
+    -------
+    low, high : float
+    source : str
+        ``"metadata"``, ``"ground truth"`` or ``"estimated"``.
+    """
+    meta = lf.meta
+    if meta.get("disparity_range") is not None:
+        low, high = meta["disparity_range"]
+        return float(low), float(high), "metadata"
+    if meta.get("disparity") is not None:
+        truth = np.asarray(meta["disparity"], np.float64)
+        if np.isfinite(truth).any():
+            return float(np.nanmin(truth)), float(np.nanmax(truth)), "ground truth"
+    low, high = estimate_slope_range(lf)
+    return low, high, "estimated"
+
+
 def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
     """Fraction of aliased pixels at each slope of a sweep.
 
@@ -197,9 +224,8 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
     ----------
     lf : LightField
     slopes : sequence of float, optional
-        The slopes. Default: ``n_slopes`` across the range of
-        :func:`estimate_slope_range`, padded by half its width (at least 0.5
-        on each side), so both ends of the depth range are out of focus.
+        The slopes. Default: ``n_slopes`` across :func:`disparity_range`,
+        widened by ``SLOPE_PAD`` on each side.
     n_slopes : int
         Number of slopes when ``slopes`` is not given.
     **detect_kw
@@ -219,8 +245,7 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
     """
     if slopes is None:
         n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 1)
-        low, high = estimate_slope_range(lf)
-        pad = 0.5 * max(high - low, 1.0)
-        slopes = np.linspace(low - pad, high + pad, n_slopes)
+        low, high, _ = disparity_range(lf)
+        slopes = np.linspace(low - SLOPE_PAD, high + SLOPE_PAD, n_slopes)
     masks = refocus_sweep(lf, slopes, what="mask", **detect_kw)
     return np.asarray(slopes, np.float64), masks.mean(axis=(1, 2)).compute()

@@ -34,19 +34,12 @@ def _grid_facts(grid):
 
 
 def _disparity_facts(lf):
-    """Disparity range: ground truth or a stated range when the source has one, else estimated."""
-    meta = lf.meta
-    if meta.get("disparity_range") is not None:
-        low, high = meta["disparity_range"]
-        return {"min": float(low), "max": float(high), "from": "metadata"}
-    truth = meta.get("disparity")
-    if isinstance(truth, (np.ndarray, list)):
-        truth = np.asarray(truth, np.float64)
-        return {"min": float(np.nanmin(truth)), "max": float(np.nanmax(truth)), "from": "ground truth"}
-    from ..sweep import estimate_slope_range
+    from ..sweep import disparity_range
 
-    low, high = estimate_slope_range(lf)
-    return {"min": low, "max": high, "from": "estimated (5th-95th percentile of photo-consistent slopes)"}
+    low, high, source = disparity_range(lf)
+    if source == "estimated":
+        source = "estimated (5th-95th percentile of photo-consistent slopes)"
+    return {"min": low, "max": high, "from": source}
 
 
 def describe(path, white=None, dark=None, grid=None):

@@ -74,7 +74,7 @@ class Stages:
         self.seconds[name] = elapsed
         self.done += 1
         if not self.quiet:
-            self.stream.write(f"[{self.done}/{self.total}] {name:<28s} {elapsed:8.3f} s\n")
+            self.stream.write(f"[{self.done}/{self.total}] {name:<32s} {elapsed:8.3f} s\n")
             self.stream.flush()
 
     @property

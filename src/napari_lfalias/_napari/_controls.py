@@ -52,17 +52,25 @@ class LogSlider(QWidget):
         return int(round(min(max(fraction, 0.0), 1.0) * self._steps))
 
     def value(self):
-        """The value at the slider's position (float)."""
-        return float(f"{self._to_value(self.slider.value()):.4g}")
+        """The value: as set by :meth:`setValue`, or at the step the user moved to."""
+        return self._value
 
     def setValue(self, value):
-        """Move the slider to the step nearest ``value``."""
+        """Set ``value`` exactly (the slider shows the nearest step)."""
+        value = float(value)
+        changed = value != getattr(self, "_value", None)
+        self._value = value
+        self.slider.blockSignals(True)
         self.slider.setValue(self._to_position(value))
+        self.slider.blockSignals(False)
         self._show()
+        if changed:
+            self.valueChanged.emit(value)
 
     def _show(self):
-        self.label.setText(f"{self.value():.4g}")
+        self.label.setText(f"{self._value:.4g}")
 
-    def _on_slider(self, _position):
+    def _on_slider(self, position):
+        self._value = float(f"{self._to_value(position):.3g}")
         self._show()
-        self.valueChanged.emit(self.value())
+        self.valueChanged.emit(self._value)

@@ -135,7 +135,15 @@ class LensletConversionWidget(QWidget):
         if white is None:
             self.status.setText("Choose the white (flat-field) image first.")
             return None
+        if not self._exists(white) or (dark is not None and not self._exists(dark)):
+            return None
         return white, dark
+
+    def _exists(self, path):
+        if path.is_file():
+            return True
+        self.status.setText(f"{path}: no such file; choose an existing image.")
+        return False
 
     # -- calibration ------------------------------------------------------------------
     def calibrate(self):
@@ -189,11 +197,11 @@ class LensletConversionWidget(QWidget):
 
     def _convert_job(self):
         raw = self.raw_field.path()
-        frames = self._frames()
         if raw is None:
             self.status.setText("Choose the raw lenslet image first.")
             return None
-        if frames is None:
+        frames = self._frames()
+        if frames is None or not self._exists(raw):
             return None
         white, dark = frames
 

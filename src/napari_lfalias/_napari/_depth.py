@@ -10,11 +10,24 @@ __all__ = ["depth_of_slope", "depth_label"]
 _HCI_KEYS = ("baseline_mm", "focal_length_mm", "focus_distance_m", "sensor_size_mm")
 
 
+def _flatten(params):
+    """``parameters.cfg`` values, whether kept flat or by section (``intrinsics``, ...)."""
+    flat = {}
+    for key, value in params.items():
+        if isinstance(value, dict):
+            flat.update(value)
+        else:
+            flat[key] = value
+    return flat
+
+
 def _hci_parameters(meta):
-    for key in ("hci_parameters", "parameters", "camera"):
+    for key in ("hci", "hci_parameters", "parameters"):
         params = meta.get(key)
-        if isinstance(params, dict) and all(k in params for k in _HCI_KEYS):
-            return params
+        if isinstance(params, dict):
+            params = _flatten(params)
+            if all(k in params for k in _HCI_KEYS):
+                return params
     return None
 
 
@@ -22,8 +35,8 @@ def depth_of_slope(lf, slope):
     """Depth in metres of the plane in focus at ``slope``, or ``None`` if unknown.
 
     Uses, in order, a callable ``lf.meta["depth_of_disparity"]`` set by the
-    decoder, or HCI benchmark parameters (``parameters.cfg``) in
-    ``lf.meta["hci_parameters"]``. For a shifted-sensor camera array with
+    decoder, or HCI benchmark parameters (``parameters.cfg``, as the
+    camera-array decoder keeps them in ``lf.meta["hci"]``). For a shifted-sensor camera array with
     baseline ``b``, focal length ``f``, sensor width ``s`` over ``W`` pixels
     and focus distance ``D``, a point at depth ``Z`` moves
     ``d = (b f W / s) (1/D - 1/Z)`` pixels per view step (positive behind

@@ -121,8 +121,7 @@ def show_output(viewer, role, data, source, params=None, **kwargs):
         Name of the light-field layer the output was computed from.
     params : dict, optional
         What the data were computed with, stored in
-        ``layer.metadata["lfalias_params"]`` before the data change (so a
-        listener to ``layer.events.data`` reads the new parameters).
+        ``layer.metadata["lfalias_params"]``.
     **kwargs
         Extra layer attributes (``contrast_limits``, ``name``, ...) applied on
         creation and on every update.
@@ -130,12 +129,12 @@ def show_output(viewer, role, data, source, params=None, **kwargs):
     Returns
     -------
     layer : napari.layers.Layer
-        The updated (or new) layer.
+        The updated (or new) layer. Its array belongs to the layer: an
+        update is copied into it, so arrays passed in are never changed later.
     """
     spec = ROLES[role]
     layer = find_output_layer(viewer, role, source)
     expected = "labels" if spec["layer_type"] == "labels" else "image"
-    rgb = data.ndim == 3
     if layer is not None and (
         layer._type_string != expected or layer.data.shape != data.shape
     ):
@@ -146,12 +145,20 @@ def show_output(viewer, role, data, source, params=None, **kwargs):
         options.update(kwargs)
         options.setdefault("name", f"{role} [{source}]")
         options["metadata"] = {ROLE_KEY: role, SOURCE_KEY: source, PARAMS_KEY: params}
+        # the layer owns its array, so later updates can be written into it
+        data = np.array(data, copy=True)
         if expected == "labels":
             return viewer.add_labels(data, **options)
-        return viewer.add_image(data, rgb=rgb, **options)
+        return viewer.add_image(data, rgb=data.ndim == 3, **options)
     layer.metadata[PARAMS_KEY] = params
-    layer.data = data
     for key, value in kwargs.items():
-        if key != "name":
+        if key != "name" and not np.array_equal(getattr(layer, key), value):
             setattr(layer, key, value)
+    if isinstance(layer.data, np.ndarray) and layer.data.dtype == data.dtype:
+        # writing into the layer's own array and refreshing costs half of
+        # setting ``layer.data`` (no new-data bookkeeping)
+        np.copyto(layer.data, data)
+        layer.refresh()
+    else:
+        layer.data = np.array(data, copy=True)
     return layer

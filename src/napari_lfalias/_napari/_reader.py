@@ -10,7 +10,6 @@ through :func:`napari_lfalias.load`.
 from __future__ import annotations
 
 import os
-import re
 import struct
 from pathlib import Path
 
@@ -25,13 +24,7 @@ __all__ = [
     "is_camera_array_folder",
 ]
 
-#: View-file names of the camera-array layouts the decoder reads.
-_VIEW_NAME_PATTERNS = (
-    re.compile(r"^input_Cam\d+\.png$", re.IGNORECASE),  # HCI 4D benchmark
-    re.compile(r"^out_\d+_\d+_-?[\d.]+_-?[\d.]+\.png$", re.IGNORECASE),  # Stanford archive
-    re.compile(r"^.*_\d+_\d+\.(png|tif|tiff|jpg|jpeg|bmp)$", re.IGNORECASE),  # *_RR_CC.*
-)
-#: Fewest view files that make a folder a light field.
+#: Fewest views that make a folder a light field.
 _MIN_VIEWS = 4
 
 _LENSLET_SUFFIXES = {".tif", ".tiff", ".png", ".dng"}
@@ -53,15 +46,22 @@ def _single_path(path):
 
 
 def is_camera_array_folder(folder):
-    """True if ``folder`` holds at least 4 view files of one known naming layout."""
+    """True if the names in ``folder`` lay out a full grid of at least 4 views.
+
+    Uses the decoder's own naming rules
+    (:func:`napari_lfalias.decoders.view_names.find_views`: HCI
+    ``input_Cam*.png``, Stanford ``out_RR_CC_y_x.png``, ``*_RR_CC.*``),
+    which read names only, never pixels.
+    """
+    from ..decoders.view_names import find_views
+    from ..errors import LightFieldError
+
     try:
-        names = [entry.name for entry in os.scandir(folder) if entry.is_file()]
-    except OSError:
+        layout = find_views(folder)
+    except (LightFieldError, OSError):
         return False
-    return any(
-        sum(1 for name in names if pattern.match(name)) >= _MIN_VIEWS
-        for pattern in _VIEW_NAME_PATTERNS
-    )
+    rows, cols = layout.grid_shape
+    return rows * cols >= _MIN_VIEWS
 
 
 def get_camera_array_reader(path):

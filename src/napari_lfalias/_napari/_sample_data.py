@@ -36,11 +36,7 @@ def brick_room(n_views=8, size=512, seed=0):
     from ..synthetic import brick_room as make_scene
 
     scene = make_scene(n_views=n_views, size=size, seed=seed)
-    lf = scene.lightfield
-    if lf.meta.get("disparity_range") is None and len(scene.layers_disparity):
-        # the focus control spans the scene's depth layers
-        lf.meta["disparity_range"] = (float(min(scene.layers_disparity)), float(max(scene.layers_disparity)))
-    return [lightfield_layer_data(lf, "brick room")]
+    return [lightfield_layer_data(scene.lightfield, "brick room")]
 
 
 def guv_capture():

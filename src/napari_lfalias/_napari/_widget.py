@@ -16,7 +16,7 @@ result computed for parameters that have changed since is dropped.
 from __future__ import annotations
 
 import numpy as np
-from qtpy.QtCore import Qt
+from qtpy.QtCore import Qt, Signal
 from qtpy.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -52,7 +52,15 @@ class AliasingWidget(QWidget):
     napari_viewer : napari.Viewer
         The viewer whose light-field layers (Image layers with a
         ``metadata["lightfield"]``) the widget works on.
+
+    Attributes
+    ----------
+    outputs_updated : Signal(str, dict)
+        Emitted with the role and the parameters each time an output layer
+        has new data.
     """
+
+    outputs_updated = Signal(str, dict)
 
     def __init__(self, napari_viewer):
         super().__init__()
@@ -60,6 +68,7 @@ class AliasingWidget(QWidget):
         self.session = None
         self.source = None
         self._source_layer = None
+        self._closed = False
         self.jobs = JobRunner(
             on_progress=self._on_progress, on_error=self._on_error, on_idle=self._on_idle
         )
@@ -141,6 +150,8 @@ class AliasingWidget(QWidget):
 
     # -- the light-field layer ---------------------------------------------------
     def _refresh_layers(self, event=None):
+        if self._closed:
+            return
         names = [layer.name for layer in lightfield_layers(self.viewer)]
         current = self.layer_combo.currentText()
         self.layer_combo.blockSignals(True)
@@ -196,7 +207,8 @@ class AliasingWidget(QWidget):
         )
 
     def _show_depth(self):
-        text = depth_label(self.session.lf, self.slope) if self.session is not None else ""
+        # the light field as opened: its metadata, never its (maybe lazy) pixels
+        text = depth_label(self.session.source_lf, self.slope) if self.session is not None else ""
         self.depth_label.setText(text)
         self.depth_label.setVisible(bool(text))
 
@@ -212,7 +224,7 @@ class AliasingWidget(QWidget):
             return
         detection = self.session.cached_detection(self.slope, self.params())
         if detection is not None:
-            self._show_detection(detection, self.slope, self.params(), with_cv=False)
+            self._show_detection(detection, self.slope, with_cv=False)
 
     def _on_detection_params(self, _value=None):
         self.jobs.bump()
@@ -250,13 +262,16 @@ class AliasingWidget(QWidget):
         self.status.setText("cancelled")
 
     def shutdown(self):
-        """Stop running jobs and wait for their threads (before closing).
+        """Stop running jobs, wait for their threads, and stop following the viewer.
 
         Returns
         -------
         bool
             True if every worker ended.
         """
+        self._closed = True
+        for emitter in (self.viewer.layers.events.inserted, self.viewer.layers.events.removed):
+            emitter.disconnect(self._refresh_layers)
         ended = self.jobs.shutdown()
         if ended:
             self._close_session()
@@ -283,7 +298,7 @@ class AliasingWidget(QWidget):
             image, detection = result
             self._show_refocus(image, slope)
             if detection is not None:
-                self._show_detection(detection, slope, params)
+                self._show_detection(detection, slope)
             else:
                 self.detect()
 
@@ -294,7 +309,7 @@ class AliasingWidget(QWidget):
             return None
         slope, params = self.slope, self.params()
         job = self.session.detect(slope, params)
-        return job, lambda detection: self._show_detection(detection, slope, params)
+        return job, lambda detection: self._show_detection(detection, slope)
 
     def _reduce_job(self):
         if self.session is None:
@@ -321,7 +336,9 @@ class AliasingWidget(QWidget):
         return image[..., 0] if image.ndim == 3 and image.shape[-1] == 1 else image
 
     def _show(self, role, data, params, **kwargs):
-        return show_output(self.viewer, role, data, self.source, params=params, **kwargs)
+        layer = show_output(self.viewer, role, data, self.source, params=params, **kwargs)
+        self.outputs_updated.emit(role, params)
+        return layer
 
     def _source_contrast(self):
         return list(self._source_layer.contrast_limits)
@@ -335,15 +352,22 @@ class AliasingWidget(QWidget):
             # the opaque refocused image covers the views: stop drawing them
             self._source_layer.visible = False
 
-    def _show_detection(self, detection, slope, params, with_cv=True):
-        """Show the Cv map and the mask (only the mask when just T changed)."""
-        if detection.threshold != params.threshold:
-            detection = detection.rethreshold(params.threshold)
+    def _show_detection(self, detection, slope, with_cv=True):
+        """Show the Cv map and the mask (only the mask when just T changed).
+
+        A job's result was thresholded at the T of its start; T may have
+        moved since (T changes do not make results stale): show the
+        detection at the T the controls show now.
+        """
+        params = self.params()
+        detection = self.session.cached_detection(slope, params) or detection
         meta = self._meta(slope, params)
         if with_cv:
             cv_layer = self._show("cv", detection.cv, meta)
             if not cv_layer.metadata.get("lfalias_scaled"):
-                cv_layer.contrast_limits = [0.0, max(5 * params.threshold, 1e-6)]
+                # T sits in the lower part of the colour range, the Cv spread above it
+                top = max(2 * params.threshold, float(np.percentile(detection.cv, 99.5)), 1e-6)
+                cv_layer.contrast_limits = [0.0, top]
                 cv_layer.metadata["lfalias_scaled"] = True
         else:
             cv_layer = find_output_layer(self.viewer, "cv", self.source)

@@ -1,0 +1,181 @@
+"""Camera-array folders (one image per view) to a :class:`LightField`.
+
+The naming layouts (HCI benchmark, Stanford archive, ``*_RR_CC`` indices,
+a plain list with ``grid=(U, V)``) are recognised by
+:mod:`.view_names`; images are read by :mod:`.images`; HCI metadata and
+ground-truth disparity by :mod:`.hci`.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DecodeError, ParameterError
+from ..lightfield import LightField
+from .hci import hci_metadata
+from .images import image_header, read_image
+from .view_names import find_views
+
+__all__ = ["load_camera_array"]
+
+#: Reader threads: OpenCV and tifffile decode with the GIL released.
+_READ_THREADS = 2
+_ACCEPTED = ("grid", "lazy", "progress")
+
+
+def _describe(shape):
+    height, width, channels = shape
+    return f"{width}x{height} {'grey' if channels == 1 else 'RGB'}"
+
+
+def _check_view(path, shape, first_path, first_shape):
+    if tuple(shape) == tuple(first_shape):
+        return
+    if tuple(shape[:2]) == tuple(first_shape[:2]):
+        what = "all views must be grey, or all colour: convert them to one kind"
+    else:
+        what = "all views must have the same size: crop or resize them"
+    raise DecodeError(
+        f"{path}: a {_describe(shape)} view, but {first_path.name} is {_describe(first_shape)}; {what}"
+    )
+
+
+def _read_view(path, first_path, first_shape):
+    image = read_image(path)
+    _check_view(path, image.shape, first_path, first_shape)
+    return image
+
+
+def _read_eager(paths, grid_shape, progress):
+    first = read_image(paths[0])
+    data = np.empty(tuple(grid_shape) + first.shape, np.float32)
+    flat = data.reshape((-1,) + first.shape)
+    flat[0] = first
+    total = len(paths)
+    if progress is not None:
+        progress(1, total)
+
+    def read_into(i):
+        flat[i] = _read_view(paths[i], paths[0], first.shape)
+
+    with ThreadPoolExecutor(_READ_THREADS) as pool:
+        futures = [pool.submit(read_into, i) for i in range(1, total)]
+        try:
+            for done, future in enumerate(futures, start=2):
+                future.result()  # re-raises the first failure, in view order
+                if progress is not None:
+                    progress(done, total)
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+    return data
+
+
+def _read_lazy(paths, grid_shape, progress):
+    try:
+        import dask.array as da
+        from dask.base import tokenize
+    except ImportError as exc:
+        raise ParameterError("lazy=True needs dask: pip install 'napari-lfalias[dask]'") from exc
+    first_shape = image_header(paths[0])
+    for done, path in enumerate(paths, start=1):
+        _check_view(path, image_header(path), paths[0], first_shape)
+        if progress is not None:
+            progress(done, len(paths))
+    n_cols = grid_shape[1]
+
+    def read_block(block_info=None):
+        u, v = block_info[None]["chunk-location"][:2]
+        image = _read_view(paths[u * n_cols + v], paths[0], first_shape)
+        return image[None, None]
+
+    stamps = [(str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in paths]
+    chunks = tuple((1,) * n for n in grid_shape) + tuple((n,) for n in first_shape)
+    return da.map_blocks(
+        read_block,
+        chunks=chunks,
+        dtype=np.float32,
+        meta=np.empty((0,) * 5, np.float32),
+        name="camera-array-" + tokenize(stamps),
+    )
+
+
+def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options):
+    """Load a folder of views (one image file per view) as a light field.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The folder. Recognised names: HCI benchmark ``input_CamNNN.png``
+        (``NNN = row * V + col``; ``parameters.cfg`` and
+        ``gt_disp_lowres.pfm`` beside them are read), Stanford archive
+        ``out_RR_CC_<y>_<x>_.png`` (positions from the coordinates), or any
+        names whose stem ends with two integer groups, row then column,
+        0- or 1-based (``scene_03_04.png``, ``view_3_4.tif``).
+    grid : (int, int), optional
+        ``(U, V)``: read every image of the folder in natural sort order,
+        row-major, as a ``U x V`` grid (for names without indices).
+    lazy : bool
+        Return a light field whose data is a dask array read view by view
+        on demand (one chunk per view). Sizes are checked from the file
+        headers now; a broken file raises ``DecodeError`` when computed.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each view is read (eager)
+        or checked (lazy).
+
+    Returns
+    -------
+    LightField
+        ``data`` (U, V, Y, X, C) float32 in [0, 1] (8- and 16-bit images
+        scaled by 255 and 65535; alpha dropped). ``meta`` holds ``"source"``,
+        ``"format"`` (``"hci"``, ``"stanford"``, ``"indexed"``, ``"list"``),
+        ``"files"`` (row-major), and for HCI ``"hci"`` (the parameters),
+        ``"disparity"`` (ground truth in this package's sign) and
+        ``"disparity_range"``.
+
+    Raises
+    ------
+    DecodeError
+        An empty folder, a folder without images, a missing or duplicate
+        view, views of mixed sizes or of mixed grey and colour, an
+        unreadable or truncated file.
+    ParameterError
+        An unknown option or a malformed ``grid``.
+
+    Examples
+    --------
+    >>> import numpy as np, imageio.v3 as iio, tempfile
+    >>> from pathlib import Path
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> for u in range(3):
+    ...     for v in range(3):
+    ...         iio.imwrite(folder / f"scene_{u + 1}_{v + 1}.png", np.zeros((8, 10, 3), np.uint8))
+    >>> lf = load_camera_array(folder)
+    >>> lf.shape, lf.meta["format"]
+    ((3, 3, 8, 10, 3), 'indexed')
+    """
+    if options:
+        names = ", ".join(sorted(options))
+        raise ParameterError(
+            f"unknown option(s) for a camera-array folder: {names}; accepted: {', '.join(_ACCEPTED)}"
+        )
+    if not isinstance(lazy, (bool, np.bool_)):
+        raise ParameterError(f"lazy must be True or False, got {lazy!r}")
+    if progress is not None and not callable(progress):
+        raise ParameterError(f"progress must be a callable progress(done, total), got {progress!r}")
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DecodeError(f"{folder}: not a folder; pass the folder that holds the view images")
+    layout = find_views(folder, grid)
+    paths = layout.flat_paths()
+    read = _read_lazy if lazy else _read_eager
+    data = read(paths, layout.grid_shape, progress)
+    meta = {"source": str(folder), "format": layout.format, "files": [str(p) for p in paths]}
+    meta.update(layout.meta)
+    if layout.format == "hci":
+        meta.update(hci_metadata(folder, layout.grid_shape, data.shape[2:4]))
+    return LightField(data, layout.positions, meta)

@@ -1,0 +1,215 @@
+"""Read one view image (PNG, TIFF, JPEG, BMP) as float32 in [0, 1].
+
+PNG, JPEG and BMP are decoded with OpenCV when it is installed: it is
+faster than imageio's Pillow plugin on the HCI views
+(``benchmarks/results/camera_array.md``) and, unlike Pillow, keeps the full
+precision of 16-bit colour PNGs. Without OpenCV, imageio reads them, and a
+16-bit colour PNG is refused rather than silently cut to 8 bits. TIFF goes
+through tifffile. Any failure
+(missing file, unknown format, truncated data) becomes a
+:class:`~napari_lfalias.errors.DecodeError` naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DecodeError
+
+__all__ = ["IMAGE_SUFFIXES", "read_image", "image_header", "is_image_file"]
+
+#: File suffixes read as views (lower case).
+IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp"}
+_TIFF_SUFFIXES = {".tif", ".tiff"}
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: PNG IHDR colour types without colour (grey, grey + alpha).
+_PNG_GREY_TYPES = {0, 4}
+
+
+def is_image_file(path):
+    """True if ``path`` has a view-image suffix and is not a hidden file."""
+    path = Path(path)
+    return path.suffix.lower() in IMAGE_SUFFIXES and not path.name.startswith(".")
+
+
+def _unreadable(path, exc):
+    detail = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return DecodeError(
+        f"{path}: cannot read the image ({detail}); the file may be truncated or corrupt, "
+        "or not an image: replace it, or move it out of the folder"
+    )
+
+
+def _channels_last(array, path, grey=False):
+    """``(Y, X, C)`` with C = 1 or 3: alpha dropped, grey + alpha kept grey."""
+    if array.ndim == 2:
+        return array[..., None]
+    if array.ndim != 3:
+        raise DecodeError(f"{path}: expected a 2-D image, got an array of shape {array.shape}")
+    n = array.shape[2]
+    if grey or n in (1, 2):
+        return array[..., :1]
+    if n in (3, 4):
+        return array[..., :3]
+    raise DecodeError(f"{path}: unsupported number of channels ({n}); save it as grey or RGB")
+
+
+def _to_unit_float(array):
+    """float32 scaled by the integer dtype's maximum (floats kept as they are)."""
+    if array.dtype == np.bool_:
+        return array.astype(np.float32)
+    if np.issubdtype(array.dtype, np.integer):
+        return array.astype(np.float32) / np.float32(np.iinfo(array.dtype).max)
+    return array.astype(np.float32, copy=False)
+
+
+def _read_tiff(path):
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        array = page.asarray()
+        axes = page.axes
+    if axes.startswith("S") and array.ndim == 3:  # planar RGB
+        array = np.moveaxis(array, 0, -1)
+    return array
+
+
+def _looks_complete(raw):
+    """False for a PNG or JPEG cut short (no end marker near the end).
+
+    Such files go to imageio, which says "truncated", instead of OpenCV,
+    whose codecs print their complaints to stderr.
+    """
+    head, tail = raw[:8].tobytes(), raw[-64:].tobytes()
+    if head == _PNG_SIGNATURE:
+        return b"IEND" in tail
+    if head[:2] == b"\xff\xd8":
+        return b"\xff\xd9" in tail
+    return True
+
+
+def _opencv():
+    try:
+        import cv2
+    except ImportError:
+        return None
+    return cv2
+
+
+def _is_16bit_colour_png(raw):
+    return raw[:8].tobytes() == _PNG_SIGNATURE and raw.size > 25 and raw[24] == 16 and raw[25] in (2, 6)
+
+
+def _decode_png_jpeg(path):
+    """Decode with OpenCV; fall back to imageio, which decodes or says why not."""
+    raw = np.fromfile(path, np.uint8)
+    grey = raw[:8].tobytes() == _PNG_SIGNATURE and raw.size > 25 and raw[25] in _PNG_GREY_TYPES
+    cv2 = _opencv()
+    if cv2 is not None and _looks_complete(raw):
+        array = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
+        if array is not None:
+            if array.ndim == 3 and array.shape[2] >= 3:
+                array = array[..., [2, 1, 0]]  # BGR(A) -> RGB, alpha dropped later
+            return array, grey
+    if cv2 is None and _is_16bit_colour_png(raw):
+        raise DecodeError(
+            f"{path}: a 16-bit colour PNG; reading it at full precision needs OpenCV: "
+            "pip install opencv-python-headless"
+        )
+    import imageio.v3 as iio
+
+    return iio.imread(path), grey
+
+
+def _read_native(path):
+    """The decoded pixels in their own dtype, plus whether they are grey."""
+    path = Path(path)
+    if path.suffix.lower() in _TIFF_SUFFIXES:
+        return _read_tiff(path), False
+    return _decode_png_jpeg(path)
+
+
+def read_image(path):
+    """Read one view as float32 ``(Y, X, C)``, ``C`` = 1 (grey) or 3 (RGB).
+
+    Integer pixels are divided by their dtype's maximum (255 for 8-bit,
+    65535 for 16-bit), so values lie in [0, 1]; an alpha channel is dropped.
+
+    Parameters
+    ----------
+    path : str or Path
+        A PNG, TIFF, JPEG or BMP file.
+
+    Returns
+    -------
+    image : ndarray, shape (Y, X, C), float32
+
+    Raises
+    ------
+    DecodeError
+        If the file cannot be read, is truncated, or is not a 2-D grey or
+        colour image.
+
+    Examples
+    --------
+    >>> import numpy as np, imageio.v3 as iio, tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "view.png")
+    >>> iio.imwrite(path, np.full((4, 5), 255, np.uint8))
+    >>> img = read_image(path)
+    >>> img.shape, float(img.max())
+    ((4, 5, 1), 1.0)
+    """
+    try:
+        array, grey = _read_native(path)
+    except DecodeError:
+        raise
+    except Exception as exc:  # every reader has its own exception types
+        raise _unreadable(path, exc) from exc
+    return _to_unit_float(_channels_last(np.asarray(array), path, grey))
+
+
+def _pil_channels(image):
+    if image.mode == "P":
+        return 3  # palettes are expanded to RGB
+    colour = {"R", "G", "B", "C", "Y", "Cb", "Cr"}
+    return 3 if colour.intersection(image.getbands()) else 1
+
+
+def image_header(path):
+    """``(Y, X, C)`` of a view from its header, without decoding the pixels.
+
+    Parameters
+    ----------
+    path : str or Path
+        A PNG, TIFF, JPEG or BMP file.
+
+    Returns
+    -------
+    shape : tuple of int
+        Height, width and channels (1 or 3) as :func:`read_image` returns them.
+
+    Raises
+    ------
+    DecodeError
+        If the header cannot be read.
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() in _TIFF_SUFFIXES:
+            import tifffile
+
+            with tifffile.TiffFile(path) as tif:
+                page = tif.pages[0]
+                shape = dict(zip(page.axes, page.shape))
+            samples = shape.get("S", 1)
+            return shape["Y"], shape["X"], 3 if samples >= 3 else 1
+        from PIL import Image
+
+        with Image.open(path) as image:
+            width, height = image.size
+            return height, width, _pil_channels(image)
+    except Exception as exc:
+        raise _unreadable(path, exc) from exc

@@ -1,0 +1,11 @@
+"""Synthetic light fields with exact ground truth (disparity, dense-aperture reference).
+
+>>> from napari_lfalias.synthetic import brick_room
+>>> scene = brick_room(n_views=3, size=32, seed=0)
+>>> scene.lightfield.shape
+(3, 3, 32, 32, 3)
+"""
+
+from .scenes import Plane, SyntheticScene, brick_room, textured_plane, textureless_plane
+
+__all__ = ["Plane", "SyntheticScene", "brick_room", "textured_plane", "textureless_plane"]

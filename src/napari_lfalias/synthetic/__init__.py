@@ -6,6 +6,10 @@
 (3, 3, 32, 32, 3)
 """
 
+from .lenslet import LensletCapture, SceneRadiance, render_lenslet
 from .scenes import Plane, SyntheticScene, brick_room, textured_plane, textureless_plane
 
-__all__ = ["Plane", "SyntheticScene", "brick_room", "textured_plane", "textureless_plane"]
+__all__ = [
+    "Plane", "SyntheticScene", "brick_room", "textured_plane", "textureless_plane",
+    "LensletCapture", "SceneRadiance", "render_lenslet",
+]

@@ -16,10 +16,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["split_shifts", "refocus_sum", "shifted_stack", "moments", "stack_moments", "stack_mean"]
+__all__ = [
+    "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
+    "pyr_down", "luminance_ranges", "pattern_cv",
+]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
 TAP_EPS = 1e-7
+#: Half the spacing of float32 numbers near 1: a spread across views smaller than
+#: this fraction of the mean is rounding of the float64 sums, not in the float32 data.
+ROUNDING = 2.0 ** -24
 
 
 def split_shifts(shifts):
@@ -67,24 +73,29 @@ def _sample_px(view, weight, has_weight, n_ch, x, r0, r1, wy0, wy1, bx, fx, num,
 
 
 @njit(cache=True, inline="always")
-def _sample_row(view, weight, has_weight, n_ch, y, by, fy, bx, fx, num, den):
-    """Tap sums of output row ``y`` of one view ``(Y, X*C)`` into ``num (X*C)`` and ``den (X)``."""
+def _sample_row(view, weight, has_weight, n_ch, y, by, fy, bx, fx, num, den, x_lo=0, x_hi=-1):
+    """Tap sums of output row ``y`` of one view ``(Y, X*C)`` into ``num (X*C)`` and ``den (X)``.
+
+    Only columns ``x_lo <= x < x_hi`` are written (``x_hi = -1``: to the end of the row).
+    """
     n_rows, n_cols = view.shape[0], view.shape[1] // n_ch
+    if x_hi < 0:
+        x_hi = n_cols
     y0 = y + by
     wy0 = (1.0 - fy) if 0 <= y0 < n_rows else 0.0
     wy1 = fy if 0 <= y0 + 1 < n_rows else 0.0
     r0 = _clamp(y0, n_rows)
     r1 = _clamp(y0 + 1, n_rows)
     if has_weight:
-        for x in range(n_cols):
+        for x in range(x_lo, x_hi):
             _sample_px(view, weight, has_weight, n_ch, x, r0, r1, wy0, wy1, bx, fx, num, den)
         return
     # interior: both column taps inside, constant weights, one contiguous (vectorised) loop
-    start = min(max(-bx, 0), n_cols)
-    stop = max(min(n_cols - 1 - bx, n_cols), start)
-    for x in range(start):
+    start = min(max(-bx, x_lo), x_hi)
+    stop = max(min(n_cols - 1 - bx, x_hi), start)
+    for x in range(x_lo, start):
         _sample_px(view, weight, has_weight, n_ch, x, r0, r1, wy0, wy1, bx, fx, num, den)
-    for x in range(stop, n_cols):
+    for x in range(stop, x_hi):
         _sample_px(view, weight, has_weight, n_ch, x, r0, r1, wy0, wy1, bx, fx, num, den)
     a = wy0 * (1.0 - fx)
     b = wy0 * fx
@@ -209,6 +220,32 @@ def moments(views, n_ch, weights, has_weight, base, frac, out_mean, out_var, out
 
 
 @njit(cache=True, parallel=True)
+def moments_tiles(views, n_ch, weights, has_weight, base, frac, tiles, out_mean, out_var, out_wsum, out_count):
+    """:func:`moments` of the tiles ``(K, 4)`` = ``(y0, y1, x0, x1)`` only; other pixels are not written."""
+    n, n_cols = views.shape[0], views.shape[2] // n_ch
+    for t in prange(tiles.shape[0]):
+        y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
+        width = x1 - x0
+        num = np.empty(n_cols * n_ch)
+        den = np.empty(n_cols)
+        mean = np.empty(width * n_ch)
+        m2 = np.empty(width * n_ch)
+        wsum = np.empty(width)
+        count = np.empty(width, np.int32)
+        for y in range(y0, y1):
+            mean[:] = 0.0
+            m2[:] = 0.0
+            wsum[:] = 0.0
+            count[:] = 0
+            for i in range(n):
+                _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
+                            base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den, x0, x1)
+                _welford_row(num[x0 * n_ch:x1 * n_ch], den[x0:x1], True, n_ch, mean, m2, wsum, count)
+            _store_moments(y, n_ch, mean, m2, wsum, count, out_mean[:, x0:x1], out_var[:, x0:x1],
+                           out_wsum[:, x0:x1], out_count[:, x0:x1])
+
+
+@njit(cache=True, parallel=True)
 def stack_moments(values, n_ch, weights, out_mean, out_var, out_wsum, out_count):
     """:func:`moments` of an already shifted stack: values ``(n, Y, X*C)``, weights ``(n, Y, X)``."""
     n, n_rows, n_cols = values.shape[0], values.shape[1], values.shape[2] // n_ch
@@ -243,3 +280,195 @@ def stack_mean(values, n_ch, weights, view_weights, out):
             inv = 1.0 / acc_w[x] if acc_w[x] > 0.0 else 0.0
             for ch in range(n_ch):
                 out[y, x, ch] = acc[x * n_ch + ch] * inv
+
+
+#: The 5-tap binomial kernel of the Burt-Adelson Gaussian pyramid.
+BINOMIAL5 = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+
+
+@njit(cache=True, parallel=True)
+def pyr_down(images, weights, has_weight, per_weight, out, out_weights):
+    """Binomial blur and 2x decimation of ``images (m, Y, X)`` into ``out (m, ceil(Y/2), ceil(X/2))``.
+
+    Taps outside the image, or of weight 0, carry no weight: each output is
+    the normalised convolution ``sum k w x / sum k w``. ``weights (m / per_weight, Y, X)``
+    are shared by ``per_weight`` consecutive images (the channels of one view);
+    With weights, ``out_weights`` receives the valid fraction of the
+    in-bounds kernel weight; without, it is not written.
+    """
+    m, n_rows, n_cols = images.shape
+    out_rows, out_cols = out.shape[1], out.shape[2]
+    k = BINOMIAL5
+    for job in prange(m * out_rows):
+        i = job // out_rows
+        yo = job % out_rows
+        w_i = i // per_weight if has_weight else 0
+        acc = np.zeros(n_cols)
+        acc_w = np.zeros(n_cols)
+        k_rows = 0.0
+        for t in range(5):
+            y = 2 * yo + t - 2
+            if y < 0 or y >= n_rows:
+                continue
+            kt = k[t]
+            k_rows += kt
+            if has_weight:
+                for x in range(n_cols):
+                    w = kt * weights[w_i, y, x]
+                    acc[x] += w * images[i, y, x]
+                    acc_w[x] += w
+            else:
+                for x in range(n_cols):
+                    acc[x] += kt * images[i, y, x]
+                    acc_w[x] += kt
+        for xo in range(out_cols):
+            total = 0.0
+            total_w = 0.0
+            k_cols = 0.0
+            for t in range(5):
+                x = 2 * xo + t - 2
+                if 0 <= x < n_cols:
+                    total += k[t] * acc[x]
+                    total_w += k[t] * acc_w[x]
+                    k_cols += k[t]
+            out[i, yo, xo] = total / total_w if total_w > 0.0 else 0.0
+            if has_weight and i % per_weight == 0:
+                out_weights[w_i, yo, xo] = total_w / (k_rows * k_cols)
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def luminance_ranges(views, n_ch, coeffs, combine, weights, has_weight, tile, out_lum, out_min, out_max):
+    """Luminance of ``views (n, Y, X*C)`` and the least and greatest value of each ``tile x tile`` block.
+
+    With ``combine``, each sample's value is ``sum_c coeffs[c] x_c``, written to
+    ``out_lum (n, Y, X)``; without, every channel is a value and ``out_lum``
+    is not written. Samples of weight 0 are left out of the ranges; a block
+    with none keeps ``+inf`` and ``-inf``.
+    """
+    n, n_rows, n_cols = views.shape[0], views.shape[1], views.shape[2] // n_ch
+    n_tile_rows, n_tile_cols = out_min.shape
+    width = n_cols if combine else n_cols * n_ch
+    per_tile = tile if combine else tile * n_ch
+    for ty in prange(n_tile_rows):
+        low = np.full(n_tile_cols, np.inf)
+        high = np.full(n_tile_cols, -np.inf)
+        row = np.empty(width)
+        for i in range(n):
+            for y in range(ty * tile, min((ty + 1) * tile, n_rows)):
+                source = views[i, y]
+                if combine:
+                    for x in range(n_cols):
+                        total = 0.0
+                        for ch in range(n_ch):
+                            total += coeffs[ch] * source[x * n_ch + ch]
+                        row[x] = total
+                        out_lum[i, y, x] = total
+                else:
+                    for k in range(width):
+                        row[k] = source[k]
+                if has_weight:
+                    for k in range(width):
+                        if weights[i, y, k if combine else k // n_ch] <= 0.0:
+                            row[k] = np.nan
+                for b in range(n_tile_cols):
+                    lo, hi = low[b], high[b]
+                    for k in range(b * per_tile, min((b + 1) * per_tile, width)):
+                        v = row[k]
+                        if v == v:  # not a masked sample
+                            lo = min(lo, v)
+                            hi = max(hi, v)
+                    low[b], high[b] = lo, hi
+        for b in range(n_tile_cols):
+            out_min[ty, b] = low[b]
+            out_max[ty, b] = high[b]
+
+
+@njit(cache=True, parallel=True)
+def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_count):
+    """Cv over sampling patterns (Algorithm 1, Eq. 7) of the pixels ``pixels (M,)`` of a shifted stack.
+
+    ``values (n, P*C)`` are the shifted views (normalised), ``weights (n, P)``
+    their validity. Pattern ``j`` keeps every view but ``drops[j, :n_drops[j]]``,
+    so its weighted sums are the totals over all views less the few dropped
+    ones. Each pattern's mean is taken as a deviation from the pixel's mean
+    over all views (float64), so an offset costs no precision; patterns that
+    keep no view seeing the pixel are left out. ``out[pixels[q]]`` receives
+    the population std over the patterns divided by ``max(mean, floor)``,
+    the largest over channels, and ``out_count`` the number of views that see it.
+    """
+    n = weights.shape[0]
+    n_patterns = drops.shape[0]
+    count = pixels.shape[0]
+    block = 128
+    for b in prange((count + block - 1) // block):
+        start = b * block
+        m = min(start + block, count) - start
+        w = np.empty((n, m))
+        total_w = np.zeros(m)
+        for i in range(n):
+            for q in range(m):
+                w[i, q] = weights[i, pixels[start + q]]
+                total_w[q] += w[i, q]
+        den = np.empty((n_patterns, m))
+        for j in range(n_patterns):
+            for q in range(m):
+                den[j, q] = total_w[q]
+            for d in range(n_drops[j]):
+                i = drops[j, d]
+                for q in range(m):
+                    den[j, q] -= w[i, q]
+        best = np.zeros(m)
+        x = np.empty((n, m))
+        dev = np.empty((n, m))
+        offsets = np.empty((n_patterns, m))
+        for ch in range(n_ch):
+            total = np.zeros(m)
+            for i in range(n):
+                for q in range(m):
+                    x[i, q] = values[i, pixels[start + q] * n_ch + ch]
+                    total[q] += w[i, q] * x[i, q]
+            reference = np.zeros(m)
+            for q in range(m):
+                if total_w[q] > 0.0:
+                    reference[q] = total[q] / total_w[q]
+            base = np.zeros(m)  # sum of w (x - reference) over all views: 0 up to rounding
+            for i in range(n):
+                for q in range(m):
+                    dev[i, q] = w[i, q] * (x[i, q] - reference[q])
+                    base[q] += dev[i, q]
+            mean = np.zeros(m)
+            valid = np.zeros(m)
+            for j in range(n_patterns):
+                for q in range(m):
+                    offsets[j, q] = base[q]
+                for d in range(n_drops[j]):
+                    i = drops[j, d]
+                    for q in range(m):
+                        offsets[j, q] -= dev[i, q]
+                for q in range(m):
+                    if den[j, q] > 1e-6:
+                        offsets[j, q] /= den[j, q]
+                        mean[q] += offsets[j, q]
+                        valid[q] += 1.0
+            spread = np.zeros(m)
+            for q in range(m):
+                if valid[q] > 0.0:
+                    mean[q] /= valid[q]
+            for j in range(n_patterns):
+                for q in range(m):
+                    if den[j, q] > 1e-6:
+                        gap = offsets[j, q] - mean[q]
+                        spread[q] += gap * gap
+            for q in range(m):
+                if valid[q] > 0.0:
+                    level = reference[q] + mean[q]
+                    std = np.sqrt(spread[q] / valid[q])
+                    if std > ROUNDING * abs(level):  # else float32 data cannot hold it: rounding
+                        best[q] = max(best[q], std / max(level, floor))
+        for q in range(m):
+            out[pixels[start + q]] = best[q]
+            seen = 0
+            for i in range(n):
+                if w[i, q] > 0.0:
+                    seen += 1
+            out_count[pixels[start + q]] = seen

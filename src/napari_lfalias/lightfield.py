@@ -142,6 +142,18 @@ class LightField:
         self.weights = weights
         self.meta = dict(meta) if meta else {}
 
+    @classmethod
+    def _derived(cls, data, positions, meta=None, weights=None):
+        """A light field made by this package from a validated one: no checks, no copies.
+
+        ``data`` must be a 5-D float32 array (numpy or dask) of finite
+        values, ``positions`` and ``weights`` of matching shapes.
+        """
+        lf = cls.__new__(cls)
+        lf.data, lf.positions, lf.weights = data, positions, weights
+        lf.meta = dict(meta) if meta else {}
+        return lf
+
     # -- shape helpers -------------------------------------------------
     @property
     def shape(self):
@@ -198,7 +210,7 @@ class LightField:
             return self
         data = self.data if self.is_lazy else np.asarray(self.data)
         lum = (data @ REC709)[..., None]
-        return LightField(lum, self.positions, self.meta, weights=self.weights)
+        return LightField._derived(lum, self.positions, self.meta, self.weights)
 
     def subset(self, rows=slice(None), cols=slice(None)):
         """Return the light field of a sub-grid of views, keeping their positions.

@@ -1,0 +1,654 @@
+"""Angular-aliasing detection: Algorithm 1 of Xiao et al. (CVPR 2014).
+
+A refocused pixel is aliased when refocusing it from slightly different
+subsets of the views changes it noticeably. Algorithm 1 draws ``N`` random
+sampling patterns, each keeping a uniformly random subset of ``k`` of the
+``n`` views (``k`` uniform on ``ceil((1 - gamma) n) .. n``), refocuses with
+each, and measures the coefficient of variation of the ``N`` results
+(Eq. 7) on luminance::
+
+    Cv = std / mean      (population std over the N refocused values)
+
+A pixel is aliased where ``Cv > T``.
+
+Two methods
+-----------
+``"monte_carlo"``
+    The paper's estimate. The views are shifted once (one
+    :class:`~napari_lfalias.refocus.ShiftedStack` per slope and pyramid
+    level); the ``N`` refocused images are one matrix product of the 0/1
+    pattern matrix with the stack. Seeded, so runs repeat.
+``"analytic"`` (default)
+    The ``N -> infinity`` limit of the same estimate, exactly and in one
+    pass. The mean of a uniformly random ``m``-subset of ``n_p`` values has
+    variance ``s^2 (n_p - m) / (m (n_p - 1))`` (finite-population
+    correction), ``s^2`` the population variance of the ``n_p`` shifted
+    views that see the pixel. Averaging over ``k`` and over the number ``m``
+    of the kept views that see the pixel (hypergeometric), given ``m >= 1``,
+    gives ``Var = c(gamma, n, n_p) s^2`` (:func:`variance_factors`), so
+    ``Cv = sqrt(c) s / mean``. With every view seeing the pixel,
+    ``c = (n E[1/k] - 1) / (n - 1)``.
+
+What ``T`` means
+----------------
+``Cv = sqrt(c) * (s / mean)``: the paper's Cv is the *angular* coefficient
+of variation ``s / mean`` of the shifted views, scaled by ``sqrt(c)``, which
+depends on gamma and on the number of views (0.042 for 8x8 views at
+gamma = 0.2, 0.038 for 9x9). The paper's ``T = 0.02`` therefore flags
+angular variations above about 48 % on an 8x8 array and 53 % on 9x9.
+``threshold_scale="angular"`` states ``T`` on ``s / mean`` itself, the
+same sensitivity for any array and gamma (``Detection.angular_cv``).
+
+Numerics
+--------
+Moments are accumulated as deviations from a running mean in float64
+(weighted Welford, :func:`~napari_lfalias.refocus.view_moments`), never as
+``E[x^2] - E[x]^2``; variances are clamped at 0. The Monte-Carlo products
+run on deviations from each pixel's mean, so an offset (data = 1000 + small
+variations) costs no precision. The mean a Cv is divided by is floored at
+``dark_floor`` times the brightest luminance of the light field (default
+1 %), so black and near-black pixels get a finite Cv that sensor noise
+cannot push over ``T``, and Cv stays invariant to a scaling of the data.
+A spread across views below ``2**-24`` of the mean (half a float32 step)
+is rounding of the sums, not in the float32 data: it counts as 0, so a
+constant light field has Cv exactly 0.
+
+Work a scene does not need is skipped
+-------------------------------------
+Before anything is shifted, the image is cut into tiles; a tile whose
+samples, over every view and over the footprint the shifts can reach, span
+``[a, b]`` has ``s <= (b - a) / 2`` and ``mean >= a``, which bounds its Cv.
+A tile whose bound cannot exceed ``T`` is not computed (its ``cv`` reads 0
+and ``Detection.evaluated`` is False there). The per-tile ranges do not
+depend on the slope and are computed once per light field.
+:class:`AliasingDetector` keeps them, the pyramid, the moments and the
+shifted stacks of the last slope: a new gamma, ``N`` or seed reuses the
+shifted views, and a new ``T`` only re-thresholds (:meth:`Detection.rethreshold`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from scipy import ndimage
+from scipy.special import gammaln
+
+from . import _validate
+from .errors import ParameterError
+from .lightfield import REC709, LightField
+from .pyramid import level_shape, lightfield_pyramid
+from .refocus import _inputs, _run, shift_views
+
+__all__ = [
+    "Detection",
+    "AliasingDetector",
+    "detect_aliasing",
+    "variance_factors",
+    "sampling_patterns",
+    "smallest_subset",
+    "METHODS",
+    "THRESHOLD_SCALES",
+    "DARK_FLOOR",
+]
+
+METHODS = ("analytic", "monte_carlo")
+THRESHOLD_SCALES = ("cv", "angular")
+LUMINANCE_MODES = ("rec709", "max")
+#: Floor of the mean a Cv is divided by, as a fraction of the light field's brightest luminance.
+DARK_FLOOR = 0.01
+#: Side of the tiles that are skipped when they cannot alias (pixels).
+TILE = 32
+
+
+# -- the statistics of random sampling patterns ------------------------------------
+
+def smallest_subset(n, gamma):
+    """Fewest views a sampling pattern keeps: ``ceil((1 - gamma) n)``, at least 1.
+
+    Examples
+    --------
+    >>> smallest_subset(64, 0.2)
+    52
+    """
+    return max(1, math.ceil((1.0 - gamma) * n - 1e-9))
+
+
+def _log_comb(a, b):
+    """``log C(a, b)``, ``-inf`` where ``b < 0`` or ``b > a`` (broadcasting)."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    valid = (b >= 0) & (b <= a)
+    safe_b = np.where(valid, b, 0)
+    out = gammaln(a + 1) - gammaln(safe_b + 1) - gammaln(a - safe_b + 1)
+    return np.where(valid, out, -np.inf)
+
+
+@lru_cache(maxsize=64)
+def _variance_factors(n, gamma):
+    factors = np.zeros(n + 1)
+    if n < 2:
+        return factors
+    sizes = np.arange(smallest_subset(n, gamma), n + 1, dtype=np.float64)[:, None]  # k
+    kept = np.arange(1, n + 1, dtype=np.float64)[None, :]  # m >= 1
+    for n_seen in range(2, n + 1):
+        log_p = _log_comb(n_seen, kept) + _log_comb(n - n_seen, sizes - kept) - _log_comb(n, sizes)
+        p = np.exp(log_p)  # P(m | k), one row per k; k itself is uniform
+        ratio = (n_seen - kept) / (kept * (n_seen - 1))
+        factors[n_seen] = float((p * ratio).sum() / p.sum())
+    factors.setflags(write=False)
+    return factors
+
+
+def variance_factors(n, gamma):
+    """``c(n_p)``: variance of a random pattern's mean over the views' variance ``s^2``.
+
+    Parameters
+    ----------
+    n : int
+        Number of views of the light field.
+    gamma : float
+        Relaxation: a pattern keeps ``k`` views, ``k`` uniform on
+        ``ceil((1 - gamma) n) .. n``.
+
+    Returns
+    -------
+    factors : ndarray, shape (n + 1,), float64, read-only
+        ``factors[n_p]`` for a pixel seen by ``n_p`` views (0 for
+        ``n_p < 2``): the expectation, over ``k`` and over the number
+        ``m >= 1`` of kept views that see the pixel (hypergeometric), of
+        ``(n_p - m) / (m (n_p - 1))``.
+
+    Examples
+    --------
+    >>> f = variance_factors(64, 0.2)
+    >>> k = np.arange(52, 65)
+    >>> bool(np.isclose(f[64], (64 * np.mean(1 / k) - 1) / 63))
+    True
+    """
+    n = _validate.integer_at_least("n", n, 0)
+    gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
+    return _variance_factors(n, gamma)
+
+
+def sampling_patterns(n, gamma, n_patterns, seed=None):
+    """The random sampling patterns of Algorithm 1, as a 0/1 matrix.
+
+    Parameters
+    ----------
+    n : int
+        Number of views.
+    gamma : float
+        Relaxation factor, ``0 < gamma < 1``.
+    n_patterns : int
+        Number of patterns ``N``.
+    seed : int, optional
+        Seed of the generator (the same seed gives the same patterns).
+
+    Returns
+    -------
+    patterns : ndarray, shape (N, n), float32
+        Row ``i`` keeps a uniformly random subset of ``k_i`` views,
+        ``k_i`` uniform on ``ceil((1 - gamma) n) .. n``.
+
+    Examples
+    --------
+    >>> p = sampling_patterns(64, 0.2, 5, seed=1)
+    >>> p.shape, bool(((p.sum(axis=1) >= 52) & (p.sum(axis=1) <= 64)).all())
+    ((5, 64), True)
+    """
+    n = _validate.integer_at_least("n", n, 1)
+    gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
+    n_patterns = _validate.integer_at_least("n_patterns", n_patterns, 2)
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(smallest_subset(n, gamma), n + 1, size=n_patterns)
+    ranks = np.argsort(np.argsort(rng.random((n_patterns, n)), axis=1), axis=1)
+    return (ranks < sizes[:, None]).astype(np.float32)
+
+
+# -- the result -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Detection:
+    """The result of :func:`detect_aliasing`.
+
+    Attributes
+    ----------
+    cv : ndarray, shape (Y, X), float32
+        Coefficient of variation of the refocused luminance over the
+        sampling patterns (Eq. 7); 0 where it was not evaluated.
+    mask : ndarray, shape (Y, X), bool
+        Aliased pixels: ``cv > threshold`` (``threshold_scale="cv"``) or
+        ``angular_cv > threshold`` (``"angular"``).
+    cv_scale : ndarray, shape (Y, X), float32
+        ``sqrt(c)`` of each pixel (:func:`variance_factors`): ``cv`` is
+        ``cv_scale`` times the angular coefficient of variation.
+    evaluated : ndarray, shape (Y, X), bool
+        Where ``cv`` was computed; elsewhere a bound proved the pixel
+        alias-free at ``threshold`` (or it lies outside the requested region).
+    threshold : float
+    threshold_scale : {"cv", "angular"}
+    slope : float
+        Slope at full resolution.
+    level : int
+        Pyramid level the detection ran on (``cv`` has that level's size).
+    params : dict
+        ``gamma``, ``n_patterns``, ``method``, ``seed``.
+    """
+
+    cv: np.ndarray
+    mask: np.ndarray
+    cv_scale: np.ndarray
+    evaluated: np.ndarray
+    threshold: float
+    threshold_scale: str
+    slope: float
+    level: int = 0
+    params: dict = field(default_factory=dict)
+
+    @property
+    def angular_cv(self):
+        """``cv / cv_scale``: the angular coefficient of variation ``s / mean`` (0 where unseen)."""
+        out = np.zeros_like(self.cv)
+        np.divide(self.cv, self.cv_scale, out=out, where=self.cv_scale > 0)
+        return out
+
+    def rethreshold(self, threshold, threshold_scale=None):
+        """The same Cv at another threshold, without recomputing anything.
+
+        Parameters
+        ----------
+        threshold : float
+            The new ``T`` (> 0).
+        threshold_scale : {"cv", "angular"}, optional
+            Default: this detection's.
+
+        Raises
+        ------
+        ParameterError
+            If the new threshold is lower where pixels were not evaluated
+            (tiles skipped as provably below the old threshold, or pixels
+            outside the region): their Cv was never computed. Detect again
+            (an :class:`AliasingDetector` keeps what it computed).
+        """
+        threshold = _validate.positive_float("threshold", threshold)
+        scale = self.threshold_scale if threshold_scale is None else threshold_scale
+        _validate.one_of("threshold_scale", scale, THRESHOLD_SCALES)
+        lowered = _mask_threshold(threshold, scale, self.cv_scale) < _mask_threshold(
+            self.threshold, self.threshold_scale, self.cv_scale)
+        if np.any(lowered & ~self.evaluated):
+            raise ParameterError(
+                f"threshold {threshold} is below the {self.threshold} that flat tiles were skipped at; "
+                "call detect_aliasing again (or pass skip_flat=False to keep every Cv)"
+            )
+        return Detection(self.cv, _mask(self.cv, threshold, scale, self.cv_scale), self.cv_scale,
+                         self.evaluated, threshold, scale, self.slope, self.level, self.params)
+
+
+def _mask_threshold(threshold, scale, cv_scale):
+    """The threshold on ``cv`` itself, per pixel."""
+    return np.float32(threshold) if scale == "cv" else np.float32(threshold) * cv_scale
+
+
+def _mask(cv, threshold, scale, cv_scale):
+    return cv > _mask_threshold(threshold, scale, cv_scale)
+
+
+# -- the detector ---------------------------------------------------------------------
+
+@dataclass
+class _Moments:
+    """Moments of the shifted views of one (level, slope), filled tile by tile."""
+
+    mean: np.ndarray
+    variance: np.ndarray
+    count: np.ndarray
+    done: np.ndarray  # (tile rows, tile cols) bool
+
+
+class AliasingDetector:
+    """Algorithm 1 on one light field, keeping what a new parameter can reuse.
+
+    Parameters
+    ----------
+    lf : LightField
+        The light field (a lazy one is read into memory once).
+    luminance : {"rec709", "max"}
+        Detect on Rec. 709 luminance (default), or on every colour channel
+        and keep the largest Cv.
+    dark_floor : float
+        Floor of the mean a Cv is divided by, as a fraction of the
+        brightest luminance of ``lf`` (module notes).
+    skip_flat : bool
+        Skip tiles whose Cv provably cannot exceed the threshold.
+    tile : int
+        Side of those tiles, in pixels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias import LightField
+    >>> lf = LightField(np.random.default_rng(0).random((3, 3, 32, 32, 1), np.float32))
+    >>> detector = AliasingDetector(lf)
+    >>> det = detector.detect(1.0, threshold=0.05)
+    >>> det.cv.shape, det.mask.dtype
+    ((32, 32), dtype('bool'))
+    >>> again = detector.detect(1.0, gamma=0.3)   # reuses the moments of slope 1.0
+    """
+
+    def __init__(self, lf, luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True, tile=TILE):
+        if not isinstance(lf, LightField):
+            raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
+        _validate.one_of("luminance", luminance, LUMINANCE_MODES)
+        self.dark_floor = _validate.finite_float("dark_floor", dark_floor)
+        if self.dark_floor < 0:
+            raise ParameterError(f"dark_floor must be >= 0, got {dark_floor!r}")
+        if not isinstance(skip_flat, (bool, np.bool_)):
+            raise ParameterError(f"skip_flat must be True or False, got {skip_flat!r}")
+        self.skip_flat = bool(skip_flat)
+        self.tile = _validate.integer_at_least("tile", tile, 4)
+        self.luminance = luminance
+        self.source = lf  # as given (lazy ones stay lazy)
+        self.lf = lf.compute() if lf.is_lazy else lf
+        self._levels = []  # the detection light field of each pyramid level, level 0 made on first use
+        self._ranges = {}
+        self._slope = None  # the slope whose moments and stacks are kept
+        self._moments = {}
+        self._stacks = {}
+
+    # -- cached inputs -----------------------------------------------------------
+    def level(self, level):
+        """The detection light field (luminance or colour) of pyramid ``level``."""
+        level = _validate.integer_at_least("level", level, 0)
+        if not self._levels:
+            self._levels = [self._luminance_and_ranges(self.lf, self.luminance == "rec709", 0)]
+        if level >= len(self._levels):
+            self._levels = lightfield_pyramid(self._levels[0], level)
+        return self._levels[level]
+
+    def _luminance_and_ranges(self, lf, combine, level):
+        """The light field Cv is taken on, and the per-tile ranges of its level, in one pass.
+
+        With ``combine`` (Rec. 709 on colour data) the luminance views are
+        made in the same pass; otherwise ``lf`` itself is returned.
+        """
+        views = lf.views()
+        n, height, width, n_ch = views.shape
+        combine = combine and n_ch > 1
+        shape = (-(-height // self.tile), -(-width // self.tile))
+        low, high = np.empty(shape), np.empty(shape)
+        lum = np.empty((n, height, width) if combine else (1, 1, 1), np.float32)
+        weights = lf.flat_weights()
+        has_weight = weights is not None
+        weights = np.ascontiguousarray(weights) if has_weight else np.ones((1, 1, 1), np.float32)
+        _run("luminance_ranges", np.ascontiguousarray(views).reshape(n, height, width * n_ch), n_ch,
+             REC709.astype(np.float64), combine, weights, has_weight, self.tile, lum, low, high)
+        self._ranges[level] = (low, high)
+        if not combine:
+            return lf
+        data = lum.reshape(lf.grid_shape + (height, width, 1))
+        return LightField._derived(data, lf.positions, lf.meta, lf.weights)
+
+    def _tile_ranges(self, level):
+        """Per-tile least and greatest sample over every view ``(tile rows, tile cols)``, kept per level."""
+        lf = self.level(level)
+        if level not in self._ranges:
+            self._luminance_and_ranges(lf, False, level)
+        return self._ranges[level]
+
+    @property
+    def floor(self):
+        """The floor of the mean a Cv is divided by (``dark_floor`` x brightest luminance)."""
+        high = self._tile_ranges(0)[1]
+        peak = float(np.max(high[np.isfinite(high)], initial=0.0))
+        return max(self.dark_floor * peak, float(np.finfo(np.float32).tiny))
+
+    def _keep_slope(self, slope):
+        if self._slope != slope:
+            self._slope, self._moments, self._stacks = slope, {}, {}
+
+    # -- which tiles need work -----------------------------------------------------
+    def _tile_grid(self, level):
+        low = self._tile_ranges(level)[0]
+        return low.shape
+
+    def _candidate_tiles(self, level, region):
+        """Tiles that hold at least one pixel of ``region`` (all of them without one)."""
+        shape = self._tile_grid(level)
+        if region is None:
+            return np.ones(shape, bool)
+        height, width = region.shape
+        padded = np.zeros((shape[0] * self.tile, shape[1] * self.tile), bool)
+        padded[:height, :width] = region
+        return padded.reshape(shape[0], self.tile, shape[1], self.tile).any(axis=(1, 3))
+
+    def _flat_tiles(self, level, slope, threshold, scale, method, gamma):
+        """Tiles whose Cv provably stays at or below the threshold (decided before shifting)."""
+        lf = self.level(level)
+        low, high = self._tile_ranges(level)
+        reach = math.ceil(abs(slope) * float(np.abs(lf.positions).max(initial=0.0))) + 1
+        size = 2 * math.ceil(reach / self.tile) + 1
+        # Samples beyond the image carry no weight: they widen no range.
+        low = ndimage.minimum_filter(low, size=size, mode="constant", cval=np.inf)
+        high = ndimage.maximum_filter(high, size=size, mode="constant", cval=-np.inf)
+        with np.errstate(invalid="ignore", over="ignore"):
+            relative = (high - low) / np.maximum(low, self.floor)  # (b - a) / max(a, floor)
+        relative = np.where(np.isfinite(relative), relative, np.inf)
+        n = lf.n_views
+        factors = variance_factors(n, gamma)
+        seen = factors[2:]  # any number of views may see a pixel near the border
+        f_low, f_high = (float(seen.min()), float(seen.max())) if seen.size else (0.0, 0.0)
+        if method == "analytic":  # Cv = sqrt(c) s / mean, s <= (b - a) / 2, mean >= a, any weights
+            angular_bound = relative / 2
+            cv_bound = math.sqrt(f_high) * angular_bound
+        else:
+            # With every view seeing the tile at full weight, a pattern's mean is within
+            # (n - k) / n (b - a) of the full mean; near the border or with sample
+            # weights, only within (b - a).
+            height, width = lf.image_shape
+            ty, tx = np.indices(low.shape)
+            inside = ((ty * self.tile - reach >= 0) & ((ty + 1) * self.tile + reach <= height)
+                      & (tx * self.tile - reach >= 0) & ((tx + 1) * self.tile + reach <= width))
+            share = np.where(inside & (lf.weights is None), (n - smallest_subset(n, gamma)) / n, 1.0)
+            cv_bound = share * relative
+            angular_bound = cv_bound / math.sqrt(f_low) if f_low > 0 else np.full(low.shape, np.inf)
+        bound = cv_bound if scale == "cv" else angular_bound
+        return bound <= threshold
+
+    def _tile_pixels(self, level, tiles):
+        """Boolean pixel map of ``tiles`` at ``level``."""
+        height, width = self.level(level).image_shape
+        pixels = np.repeat(np.repeat(tiles, self.tile, axis=0), self.tile, axis=1)
+        return pixels[:height, :width]
+
+    def _spans(self, level, tiles):
+        """``(K, 4)`` int64 ``(y0, y1, x0, x1)``: runs of consecutive tiles of each tile row."""
+        height, width = self.level(level).image_shape
+        spans = []
+        for ty, row in enumerate(tiles):
+            padded = np.concatenate([[False], row, [False]])
+            edges = np.flatnonzero(padded[1:] != padded[:-1])
+            for start, stop in zip(edges[::2], edges[1::2]):
+                spans.append((ty * self.tile, min((ty + 1) * self.tile, height),
+                              start * self.tile, min(stop * self.tile, width)))
+        return np.array(spans, np.int64).reshape(-1, 4)
+
+    # -- the two estimates ------------------------------------------------------------
+    def _moments_for(self, level, slope, tiles):
+        """Moments of the shifted views at (level, slope), computed on ``tiles`` if not yet done."""
+        lf = self.level(level)
+        moments = self._moments.get(level)
+        if moments is None:
+            shape = lf.image_shape
+            moments = _Moments(np.zeros(shape + (lf.n_channels,), np.float32),
+                               np.zeros(shape + (lf.n_channels,), np.float32),
+                               np.zeros(shape, np.int32), np.zeros(tiles.shape, bool))
+            self._moments[level] = moments
+        missing = tiles & ~moments.done
+        if not missing.any():
+            return moments
+        wsum = np.zeros(lf.image_shape, np.float32)
+        outputs = (moments.mean, moments.variance, wsum, moments.count)
+        if missing.all():
+            _run("moments", *_inputs(lf, slope), *outputs)
+        else:
+            _run("moments_tiles", *_inputs(lf, slope), self._spans(level, missing), *outputs)
+        moments.done |= missing
+        return moments
+
+    def _stack_for(self, level, slope):
+        """The shifted views at (level, slope) as ``values (n, P*C)`` and ``weights (n, P)`` (kept)."""
+        stack = self._stacks.get(level)
+        if stack is None:
+            shifted = shift_views(self.level(level), slope)
+            n = shifted.values.shape[0]
+            stack = (shifted.values.reshape(n, -1), shifted.weights.reshape(n, -1), shifted.values.shape[-1])
+            self._stacks[level] = stack
+        return stack
+
+    def _analytic_cv(self, level, slope, tiles, factors):
+        from ._kernels import ROUNDING  # numba is loaded by now: the moments ran
+
+        moments = self._moments_for(level, slope, tiles)
+        rounding = (np.float32(ROUNDING) * moments.mean) ** 2  # below it: rounding, not the data
+        variance = np.where(moments.variance > rounding, moments.variance, np.float32(0))
+        variance *= factors.astype(np.float32)[moments.count][..., None]
+        cv = np.sqrt(np.maximum(variance, 0)) / np.maximum(moments.mean, np.float32(self.floor))
+        return cv.max(axis=-1), moments.count
+
+    def _monte_carlo_cv(self, level, slope, pixels, patterns):
+        values, weights, n_ch = self._stack_for(level, slope)
+        dropped = patterns == 0
+        n_drops = dropped.sum(axis=1).astype(np.int64)
+        drops = np.zeros((patterns.shape[0], max(int(n_drops.max()), 1)), np.int64)
+        for j, row in enumerate(dropped):
+            drops[j, :n_drops[j]] = np.flatnonzero(row)
+        cv = np.zeros(weights.shape[1], np.float32)
+        count = np.zeros(weights.shape[1], np.int32)
+        _run("pattern_cv", values, weights, n_ch, drops, n_drops, self.floor,
+             np.flatnonzero(pixels.ravel()), cv, count)
+        shape = self.level(level).image_shape
+        return cv.reshape(shape), count.reshape(shape)
+
+    # -- the public entry point ----------------------------------------------------------
+    def detect(self, slope, gamma=0.2, n_patterns=100, threshold=0.02, method="analytic", seed=None, *,
+               level=0, threshold_scale="cv", region=None):
+        """Detect angular aliasing at ``slope`` (see :func:`detect_aliasing`).
+
+        Parameters
+        ----------
+        slope, gamma, n_patterns, threshold, method, seed, level, threshold_scale
+            As in :func:`detect_aliasing`.
+        region : ndarray of bool, shape of the level, optional
+            Only pixels of ``region`` are evaluated (Algorithm 2 passes the
+            pixels still aliased); ``cv`` is 0 and ``mask`` False elsewhere.
+
+        Returns
+        -------
+        Detection
+        """
+        slope = _validate.finite_float("slope", slope)
+        gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
+        n_patterns = _validate.integer_at_least("n_patterns", n_patterns, 2)
+        threshold = _validate.positive_float("threshold", threshold)
+        _validate.one_of("method", method, METHODS)
+        _validate.one_of("threshold_scale", threshold_scale, THRESHOLD_SCALES)
+        if seed is not None:
+            seed = _validate.integer_at_least("seed", seed, 0)
+        level = _validate.integer_at_least("level", level, 0)
+        lf = self.level(level)
+        if region is not None:
+            region = np.asarray(region)
+            if region.dtype != np.bool_ or region.shape != lf.image_shape:
+                raise ParameterError(
+                    f"region must be a boolean array of the level's shape {lf.image_shape}, "
+                    f"got {region.dtype} {region.shape}"
+                )
+        self._keep_slope(slope)
+        level_slope = slope / 2**level
+        factors = variance_factors(lf.n_views, gamma)
+        tiles = self._candidate_tiles(level, region)
+        if self.skip_flat:
+            tiles &= ~self._flat_tiles(level, level_slope, threshold, threshold_scale, method, gamma)
+        pixels = self._tile_pixels(level, tiles)
+        if region is not None:
+            pixels &= region
+        if method == "analytic":
+            cv, count = self._analytic_cv(level, level_slope, tiles, factors)
+        else:
+            patterns = sampling_patterns(lf.n_views, gamma, n_patterns, seed)
+            cv, count = self._monte_carlo_cv(level, level_slope, pixels, patterns)
+        cv = np.where(pixels, cv, np.float32(0)).astype(np.float32)
+        cv_scale = np.sqrt(factors).astype(np.float32)[np.where(pixels, count, lf.n_views)]
+        params = {"gamma": gamma, "n_patterns": n_patterns, "method": method, "seed": seed}
+        return Detection(cv, _mask(cv, threshold, threshold_scale, cv_scale), cv_scale, pixels,
+                         threshold, threshold_scale, slope, level, params)
+
+
+def detect_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, method="analytic", seed=None, *,
+                    level=0, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True):
+    """Detect angular aliasing in the refocus of ``lf`` at ``slope`` (Algorithm 1).
+
+    Parameters
+    ----------
+    lf : LightField
+        The light field.
+    slope : float
+        Disparity in focus (pixels per unit of view position).
+    gamma : float
+        Relaxation, ``0 < gamma < 1``: a sampling pattern keeps between
+        ``ceil((1 - gamma) n)`` and ``n`` of the ``n`` views.
+    n_patterns : int
+        Number of random sampling patterns ``N >= 2`` (Monte Carlo only).
+    threshold : float
+        ``T > 0``: a pixel is aliased where its Cv exceeds it.
+    method : {"analytic", "monte_carlo"}
+        The exact ``N -> infinity`` Cv (default), or the paper's estimate
+        from ``n_patterns`` random patterns.
+    seed : int, optional
+        Seed of the Monte-Carlo patterns (same seed, same result).
+    level : int
+        Pyramid level to detect on: the views are blurred and decimated
+        ``level`` times first (Algorithm 2); the result has that level's size.
+    threshold_scale : {"cv", "angular"}
+        ``"cv"`` (the paper): ``T`` applies to Cv. ``"angular"``: ``T``
+        applies to the angular coefficient of variation ``Cv / sqrt(c)``,
+        which does not depend on gamma or the number of views.
+    luminance : {"rec709", "max"}
+        Detect on Rec. 709 luminance, or per colour channel keeping the largest Cv.
+    dark_floor : float
+        Floor of the mean a Cv is divided by, as a fraction of the
+        brightest luminance of ``lf``.
+    skip_flat : bool
+        Skip tiles that provably cannot exceed ``T``.
+
+    Returns
+    -------
+    Detection
+        ``cv`` and ``mask`` (Y, X) at the level's size, and what produced them.
+
+    Raises
+    ------
+    ParameterError
+        For a parameter out of range or a light field that is not one.
+
+    Notes
+    -----
+    See the module docstring for the two methods, the meaning of ``T``,
+    the numerics and the skipped tiles. To reuse work across calls (a new
+    gamma, ``N``, ``T`` or seed at the same slope), use an
+    :class:`AliasingDetector`.
+
+    Examples
+    --------
+    >>> import napari_lfalias as lfa
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> lf = brick_room(n_views=4, size=64, seed=0).lightfield
+    >>> det = lfa.detect_aliasing(lf, slope=4.0)            # focus on the cube
+    >>> det.cv.shape, bool(det.mask.any())
+    ((64, 64), True)
+    """
+    detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, skip_flat=skip_flat)
+    return detector.detect(slope, gamma, n_patterns, threshold, method, seed,
+                           level=level, threshold_scale=threshold_scale)

@@ -1,0 +1,124 @@
+"""Aliasing reduction (Algorithm 2): levels, fusion, accuracy against the dense aperture, parameters."""
+
+import numpy as np
+import pytest
+
+import napari_lfalias as lfa
+from napari_lfalias import detect as detect_module
+from napari_lfalias.detect import AliasingDetector
+from napari_lfalias.errors import ParameterError
+from napari_lfalias.synthetic import brick_room, textured_plane
+
+
+@pytest.fixture(scope="module")
+def room():
+    return brick_room(n_views=8, size=128, seed=0)
+
+
+def psnr(image, reference, mask):
+    return 10 * np.log10(1.0 / np.mean((image - reference)[mask] ** 2))
+
+
+def test_a_light_field_without_aliasing_comes_back_as_the_naive_refocus():
+    lf = textured_plane(n_views=5, size=64, seed=0, disparity=1.0).lightfield
+    result = lfa.reduce_aliasing(lf, 1.0)
+    assert not result.level.any()
+    np.testing.assert_allclose(result.image, lfa.refocus(lf, 1.0), atol=1e-6)
+    np.testing.assert_array_equal(result.cv, lfa.detect_aliasing(lf, 1.0).cv)
+
+
+def test_max_level_zero_is_the_naive_refocus_with_its_cv(room):
+    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=0)
+    np.testing.assert_array_equal(result.image, lfa.refocus(room.lightfield, 4.0))
+    assert not result.level.any() and result.cv.max() > 0.005
+
+
+@pytest.mark.parametrize("max_level", [1, 2, 3])
+def test_level_map_follows_the_detections(room, max_level):
+    """l* = 0 where level 0 is alias-free; l* = l where levels < l alias and l does not; never above max_level."""
+    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=max_level)
+    level0 = lfa.detect_aliasing(room.lightfield, 4.0, threshold=0.005)
+    assert result.level.dtype == np.uint8 and result.level.max() <= max_level
+    np.testing.assert_array_equal(result.level == 0, ~level0.mask)
+    assert (result.level > 0).mean() > 0.3  # the wall aliases: the test could fail
+    # below the top level, the pixels of level 1 were not aliased on level 1 (nearest level
+    # pixel); on the top level, Eq. 8 puts every pixel still aliased
+    if max_level > 1:
+        level1 = result.detections[1]
+        ys, xs = np.nonzero(result.level == 1)
+        assert not level1.mask[np.minimum((ys + 1) // 2, level1.mask.shape[0] - 1),
+                               np.minimum((xs + 1) // 2, level1.mask.shape[1] - 1)].any()
+
+
+def test_pixels_kept_at_level_zero_are_unchanged(room):
+    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    keep = result.level == 0
+    assert keep.any() and (~keep).any()
+    np.testing.assert_array_equal(result.image[keep], result.refocused[keep])
+
+
+def test_output_is_finite_and_within_the_input_range(room):
+    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    data = room.lightfield.data
+    assert np.all(np.isfinite(result.image))
+    assert result.image.min() >= data.min() - 0.05 and result.image.max() <= data.max() + 0.05
+
+
+def test_reduction_is_closer_to_the_dense_aperture_where_it_acts(room):
+    """Focused on the cube, the wall aliases; the fused result must be nearer the dense-aperture reference there."""
+    slope = 4.0
+    result = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005)
+    reference = room.reference(slope)
+    acted = result.level > 0
+    assert psnr(result.image, reference, acted) >= psnr(result.refocused, reference, acted) + 3.0
+
+
+def test_coarser_levels_are_only_computed_where_pixels_are_still_aliased(room, monkeypatch):
+    regions = []
+    detect = AliasingDetector.detect
+
+    def spy(self, slope, *args, region=None, level=0, **kwargs):
+        regions.append((level, None if region is None else region.mean()))
+        return detect(self, slope, *args, region=region, level=level, **kwargs)
+
+    monkeypatch.setattr(AliasingDetector, "detect", spy)
+    lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    assert regions[0] == (0, None)
+    fractions = [fraction for level, fraction in regions[1:]]
+    assert fractions and all(0 < f < 1 for f in fractions)
+    # and no level at all where nothing aliases
+    regions.clear()
+    lfa.reduce_aliasing(room.lightfield, 4.0, threshold=10.0)
+    assert [level for level, _ in regions] == [0]
+
+
+def test_a_detector_can_be_reused(room, monkeypatch):
+    detector = AliasingDetector(room.lightfield)
+    first = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, detector=detector)
+    shifted = []
+    monkeypatch.setattr(detect_module, "_run", lambda name, *a, _run=detect_module._run: (shifted.append(name), _run(name, *a)))
+    again = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, detector=detector)
+    assert "moments" not in shifted  # level 0 reused
+    np.testing.assert_array_equal(first.image, again.image)
+    with pytest.raises(ParameterError, match="detector"):
+        lfa.reduce_aliasing(textured_plane(n_views=3, size=16).lightfield, 0.0, detector=detector)
+
+
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(max_level=-1), "max_level"), (dict(max_level=1.5), "max_level"), (dict(solver="cg"), "solver"),
+        (dict(gamma=2.0), "gamma"), (dict(n_patterns=0), "n_patterns"), (dict(threshold=0.0), "threshold"),
+        (dict(method="exact"), "method"),
+    ],
+)
+def test_bad_parameters_are_parameter_errors(room, kwargs, word):
+    with pytest.raises(ParameterError, match=word):
+        lfa.reduce_aliasing(room.lightfield, 1.0, **kwargs)
+
+
+def test_bad_slope_and_light_field_are_parameter_errors(room):
+    with pytest.raises(ParameterError, match="slope"):
+        lfa.reduce_aliasing(room.lightfield, float("nan"))
+    with pytest.raises(ParameterError, match="LightField"):
+        lfa.reduce_aliasing(np.zeros((2, 2, 8, 8, 1)), 0.0)

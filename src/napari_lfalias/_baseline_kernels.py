@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ._kernels import bilinear_point
+
 __all__ = ["box_image", "box_views", "view_spread", "warp_layers", "layer_colour"]
 
 
@@ -94,35 +96,6 @@ def box_views(views, ny, fy, nx, fx, out):
 
 # -- depth-aware rendering ------------------------------------------------------------------
 
-@njit(cache=True, inline="always")
-def _bilinear(view, sy, sx, value):
-    """Bilinear taps of ``view (Y, X, C)`` at ``(sy, sx)`` summed into ``value``; returns their weight."""
-    n_rows, n_cols, n_ch = view.shape
-    y0 = int(math.floor(sy))
-    x0 = int(math.floor(sx))
-    fy = sy - y0
-    fx = sx - x0
-    weight = 0.0
-    for c in range(n_ch):
-        value[c] = 0.0
-    for dy in range(2):
-        yy = y0 + dy
-        if yy < 0 or yy >= n_rows:
-            continue
-        ty = fy if dy else 1.0 - fy
-        for dx in range(2):
-            xx = x0 + dx
-            if xx < 0 or xx >= n_cols:
-                continue
-            tap = ty * (fx if dx else 1.0 - fx)
-            if tap <= 0.0:
-                continue
-            weight += tap
-            for c in range(n_ch):
-                value[c] += tap * view[yy, xx, c]
-    return weight
-
-
 @njit(cache=True, parallel=True)
 def view_spread(views, positions, disparity, pixels, out):
     """Variance across the views (summed over channels) of each listed pixel, sampled at its own disparity.
@@ -139,7 +112,7 @@ def view_spread(views, positions, disparity, pixels, out):
         m2 = np.zeros(n_ch)
         wsum = 0.0
         for i in range(n):
-            w = _bilinear(views[i], y + d * positions[i, 0], x + d * positions[i, 1], value)
+            w = bilinear_point(views[i], views[i, :, :, 0], False, y + d * positions[i, 0], x + d * positions[i, 1], value)
             if w <= 0.0:
                 continue
             wsum += w
@@ -232,7 +205,7 @@ def layer_colour(views, has_weight, positions, warped, r, d, y0, x0, needed, col
                 tx = int(math.floor(sx + 0.5))
                 if tx < 0 or tx >= n_cols or warped[i, ty, tx] != r:
                     continue
-                w = _bilinear(views[i], sy, sx, value)
+                w = bilinear_point(views[i], views[i, :, :, 0], False, sy, sx, value)
                 if has_weight:
                     w = value[n_k - 1]
                 if w <= 0.0:

@@ -18,7 +18,7 @@ from numba import njit, prange
 
 __all__ = [
     "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
-    "pyr_down", "luminance_ranges", "pattern_cv",
+    "pyr_down", "luminance_ranges", "pattern_cv", "bilinear_point",
 ]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
@@ -40,6 +40,41 @@ def split_shifts(shifts):
     base[up] += 1.0
     frac[up | (frac <= TAP_EPS)] = 0.0
     return base.astype(np.int64), frac
+
+
+@njit(cache=True, inline="always")
+def bilinear_point(image, valid, has_valid, py, px, sums):
+    """Bilinear taps of ``image (Y, X, C)`` at ``(py, px)`` summed into ``sums (C,)``; returns their weight.
+
+    Taps outside the image carry no weight; with ``has_valid``, each tap is
+    also weighted by ``valid (Y, X)`` (0 = not observed).
+    """
+    n_rows, n_cols, n_ch = image.shape
+    for c in range(n_ch):
+        sums[c] = 0.0
+    y0 = int(np.floor(py))
+    x0 = int(np.floor(px))
+    fy = py - y0
+    fx = px - x0
+    total = 0.0
+    for dy in range(2):
+        yy = y0 + dy
+        if yy < 0 or yy >= n_rows:
+            continue
+        wy = fy if dy == 1 else 1.0 - fy
+        for dx in range(2):
+            xx = x0 + dx
+            if xx < 0 or xx >= n_cols:
+                continue
+            w = wy * (fx if dx == 1 else 1.0 - fx)
+            if has_valid:
+                w *= valid[yy, xx]
+            if w <= 0.0:
+                continue
+            total += w
+            for c in range(n_ch):
+                sums[c] += w * image[yy, xx, c]
+    return total
 
 
 @njit(cache=True, inline="always")
@@ -342,45 +377,60 @@ def luminance_ranges(views, n_ch, coeffs, combine, weights, has_weight, tile, ou
 
     With ``combine``, each sample's value is ``sum_c coeffs[c] x_c``, written to
     ``out_lum (n, Y, X)``; without, every channel is a value and ``out_lum``
-    is not written. Samples of weight 0 are left out of the ranges; a block
-    with none keeps ``+inf`` and ``-inf``.
+    is not written. ``out_min`` and ``out_max`` are ``(n, tile rows, tile
+    cols)``: per view (the caller reduces over views). Samples of weight 0
+    are left out; a block with none keeps ``+inf`` and ``-inf``.
     """
     n, n_rows, n_cols = views.shape[0], views.shape[1], views.shape[2] // n_ch
-    n_tile_rows, n_tile_cols = out_min.shape
+    n_tile_rows, n_tile_cols = out_min.shape[1], out_min.shape[2]
     width = n_cols if combine else n_cols * n_ch
     per_tile = tile if combine else tile * n_ch
-    for ty in prange(n_tile_rows):
-        low = np.full(n_tile_cols, np.inf)
-        high = np.full(n_tile_cols, -np.inf)
-        row = np.empty(width)
-        for i in range(n):
-            for y in range(ty * tile, min((ty + 1) * tile, n_rows)):
-                source = views[i, y]
-                if combine:
-                    for x in range(n_cols):
-                        total = 0.0
-                        for ch in range(n_ch):
-                            total += coeffs[ch] * source[x * n_ch + ch]
-                        row[x] = total
-                        out_lum[i, y, x] = total
-                else:
-                    for k in range(width):
-                        row[k] = source[k]
-                if has_weight:
-                    for k in range(width):
-                        if weights[i, y, k if combine else k // n_ch] <= 0.0:
-                            row[k] = np.nan
-                for b in range(n_tile_cols):
-                    lo, hi = low[b], high[b]
-                    for k in range(b * per_tile, min((b + 1) * per_tile, width)):
-                        v = row[k]
-                        if v == v:  # not a masked sample
-                            lo = min(lo, v)
-                            hi = max(hi, v)
-                    low[b], high[b] = lo, hi
+    c0 = coeffs[0]
+    c1 = coeffs[1] if n_ch > 1 else 0.0
+    c2 = coeffs[2] if n_ch > 2 else 0.0
+    for job in prange(n * n_tile_rows):
+        i = job // n_tile_rows
+        ty = job % n_tile_rows
+        low = np.full(n_tile_cols, np.inf, np.float32)
+        high = np.full(n_tile_cols, -np.inf, np.float32)
+        row = np.empty(width, np.float32)
+        upper = np.empty(width, np.float32)
+        for y in range(ty * tile, min((ty + 1) * tile, n_rows)):
+            source = views[i, y]
+            if combine:
+                lum = out_lum[i, y]
+                for x in range(n_cols):
+                    lum[x] = c0 * source[3 * x] + c1 * source[3 * x + 1] + c2 * source[3 * x + 2]
+                row[:] = lum
+            else:
+                row[:] = source
+            upper[:] = row
+            if has_weight:  # unseen samples widen no range
+                for k in range(width):
+                    if weights[i, y, k if combine else k // n_ch] <= 0.0:
+                        row[k] = np.inf
+                        upper[k] = -np.inf
+            for b in range(n_tile_cols):
+                start = b * per_tile
+                stop = min(start + per_tile, width)
+                lo, hi = low[b], high[b]
+                for k in range(start, stop):
+                    lo = min(lo, row[k])
+                    hi = max(hi, upper[k])
+                low[b], high[b] = lo, hi
         for b in range(n_tile_cols):
-            out_min[ty, b] = low[b]
-            out_max[ty, b] = high[b]
+            out_min[i, ty, b] = low[b]
+            out_max[i, ty, b] = high[b]
+
+
+@njit(cache=True, inline="always")
+def _less_dropped(total, per_view, drops, n_drops, out):
+    """``out = total - sum of per_view[i]`` over the ``n_drops`` views ``drops[:n_drops]``."""
+    out[:] = total
+    for d in range(n_drops):
+        row = per_view[drops[d]]
+        for q in range(out.shape[0]):
+            out[q] -= row[q]
 
 
 @njit(cache=True, parallel=True)
@@ -411,12 +461,7 @@ def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_co
                 total_w[q] += w[i, q]
         den = np.empty((n_patterns, m))
         for j in range(n_patterns):
-            for q in range(m):
-                den[j, q] = total_w[q]
-            for d in range(n_drops[j]):
-                i = drops[j, d]
-                for q in range(m):
-                    den[j, q] -= w[i, q]
+            _less_dropped(total_w, w, drops[j], n_drops[j], den[j])
         best = np.zeros(m)
         x = np.empty((n, m))
         dev = np.empty((n, m))
@@ -439,12 +484,7 @@ def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_co
             mean = np.zeros(m)
             valid = np.zeros(m)
             for j in range(n_patterns):
-                for q in range(m):
-                    offsets[j, q] = base[q]
-                for d in range(n_drops[j]):
-                    i = drops[j, d]
-                    for q in range(m):
-                        offsets[j, q] -= dev[i, q]
+                _less_dropped(base, dev, drops[j], n_drops[j], offsets[j])
                 for q in range(m):
                     if den[j, q] > 1e-6:
                         offsets[j, q] /= den[j, q]

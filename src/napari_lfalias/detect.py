@@ -377,14 +377,14 @@ class AliasingDetector:
         n, height, width, n_ch = views.shape
         combine = combine and n_ch > 1
         shape = (-(-height // self.tile), -(-width // self.tile))
-        low, high = np.empty(shape), np.empty(shape)
+        low, high = np.empty((n,) + shape, np.float32), np.empty((n,) + shape, np.float32)
         lum = np.empty((n, height, width) if combine else (1, 1, 1), np.float32)
         weights = lf.flat_weights()
         has_weight = weights is not None
         weights = np.ascontiguousarray(weights) if has_weight else np.ones((1, 1, 1), np.float32)
         _run("luminance_ranges", np.ascontiguousarray(views).reshape(n, height, width * n_ch), n_ch,
-             REC709.astype(np.float64), combine, weights, has_weight, self.tile, lum, low, high)
-        self._ranges[level] = (low, high)
+             REC709.astype(np.float32), combine, weights, has_weight, self.tile, lum, low, high)
+        self._ranges[level] = (low.min(axis=0).astype(np.float64), high.max(axis=0).astype(np.float64))
         if not combine:
             return lf
         data = lum.reshape(lf.grid_shape + (height, width, 1))

@@ -21,10 +21,10 @@ reads a few sensor rows that sit in the cache, and writes contiguous output.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
+
+from .._kernels import bilinear_point
 
 __all__ = ["view_offsets", "output_taps", "slice_views"]
 
@@ -91,36 +91,6 @@ def output_taps(grid):
     return centres + grid.displacement(centres), np.ascontiguousarray(weights)
 
 
-@njit(cache=True, inline="always")
-def _tap(image, valid, py, px, channel_sums):
-    """Validity-weighted bilinear sample at (py, px): fills channel_sums, returns the summed weight."""
-    height, width = valid.shape
-    n_ch = image.shape[2]
-    for c in range(n_ch):
-        channel_sums[c] = 0.0
-    y0 = int(math.floor(py))
-    x0 = int(math.floor(px))
-    fy = py - y0
-    fx = px - x0
-    total = 0.0
-    for dy in range(2):
-        yy = y0 + dy
-        if yy < 0 or yy >= height:
-            continue
-        wy = fy if dy == 1 else 1.0 - fy
-        for dx in range(2):
-            xx = x0 + dx
-            if xx < 0 or xx >= width:
-                continue
-            w = wy * (fx if dx == 1 else 1.0 - fx) * valid[yy, xx]
-            if w <= 0.0:
-                continue
-            total += w
-            for c in range(n_ch):
-                channel_sums[c] += w * image[yy, xx, c]
-    return total
-
-
 @njit(cache=True, parallel=True)
 def _slice_kernel(image, valid, centres, tap_weights, offsets, view_on, out, out_weight):
     n_u, n_v, n_y, n_x, n_ch = out.shape
@@ -141,7 +111,7 @@ def _slice_kernel(image, valid, centres, tap_weights, offsets, view_on, out, out
                 ox = offsets[u, v, 1]
                 for x in range(n_x):
                     for k in range(n_taps):
-                        total = _tap(image, valid, centres[y, x, k, 0] + oy, centres[y, x, k, 1] + ox, sums)
+                        total = bilinear_point(image, valid, True, centres[y, x, k, 0] + oy, centres[y, x, k, 1] + ox, sums)
                         valids[k] = total
                         for c in range(n_ch):
                             values[k, c] = sums[c] / total if total > 0.0 else 0.0

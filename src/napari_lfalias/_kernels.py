@@ -197,39 +197,54 @@ def shifted_stack(views, n_ch, weights, has_weight, base, frac, out_values, out_
 
 
 @njit(cache=True, inline="always")
-def _welford_row(values, weights, normalise, n_ch, mean, m2, wsum, count):
-    """Fold one view's row into running weighted moments (weighted Welford update).
+def _accumulate_row(values, weights, normalise, n_ch, shift, s1, s2, wsum, count):
+    """Fold one view's row into weighted sums of deviations from a per-pixel shift.
 
     ``values (X*C)`` are the samples, or their tap sums when ``normalise``
-    (divided by ``weights (X)`` here); deviations are taken from the
-    running mean, so a large offset costs no precision.
+    (divided by ``weights (X)`` here). Each pixel's sums run about
+    ``shift``, the first sample seen there, so the deviations stay within
+    the spread of the data whatever its offset, and the float64 sums of
+    their squares lose nothing the float32 samples hold (``E[x^2] - E[x]^2``
+    of the raw values would). Branch-free, so the loop vectorises.
     """
+    if n_ch == 1:  # luminance, what detection runs on: one flat loop LLVM can vectorise
+        for x in range(wsum.shape[0]):
+            w = weights[x]
+            v = values[x] / max(w, 1e-30) if normalise else values[x]  # tap sums are 0 where w is
+            shift[x] = v if wsum[x] == 0.0 else shift[x]
+            d = v - shift[x]
+            s1[x] += w * d
+            s2[x] += w * d * d
+            wsum[x] += w
+            count[x] += w > 0.0
+        return
     for x in range(wsum.shape[0]):
         w = weights[x]
-        if w <= 0.0:
-            continue
-        total = wsum[x] + w
-        share = w / total
-        inv = 1.0 / w if normalise else 1.0
+        seen = w > 0.0
+        inv = 1.0 / w if (normalise and seen) else (1.0 if not normalise else 0.0)
+        fresh = wsum[x] == 0.0
         for ch in range(n_ch):
             k = x * n_ch + ch
-            delta = values[k] * inv - mean[k]
-            mean[k] += share * delta
-            m2[k] += w * delta * (delta - share * delta)
-        wsum[x] = total
-        count[x] += 1
+            v = values[k] * inv
+            shift[k] = v if fresh else shift[k]
+            d = v - shift[k]
+            s1[k] += w * d
+            s2[k] += w * d * d
+        wsum[x] += w
+        count[x] += 1 if seen else 0
 
 
 @njit(cache=True, inline="always")
-def _store_moments(y, n_ch, mean, m2, wsum, count, out_mean, out_var, out_wsum, out_count):
+def _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean, out_var, out_wsum, out_count):
     for x in range(wsum.shape[0]):
         out_wsum[y, x] = wsum[x]
         out_count[y, x] = count[x]
         inv = 1.0 / wsum[x] if wsum[x] > 0.0 else 0.0
         for ch in range(n_ch):
             k = x * n_ch + ch
-            out_mean[y, x, ch] = mean[k]
-            out_var[y, x, ch] = max(m2[k] * inv, 0.0)
+            offset = s1[k] * inv
+            out_mean[y, x, ch] = shift[k] + offset
+            out_var[y, x, ch] = max(s2[k] * inv - offset * offset, 0.0)
 
 
 @njit(cache=True, parallel=True)
@@ -243,15 +258,16 @@ def moments(views, n_ch, weights, has_weight, base, frac, out_mean, out_var, out
     for y in prange(n_rows):
         num = np.empty(n_cols * n_ch)
         den = np.empty(n_cols)
-        mean = np.zeros(n_cols * n_ch)
-        m2 = np.zeros(n_cols * n_ch)
+        shift = np.zeros(n_cols * n_ch)
+        s1 = np.zeros(n_cols * n_ch)
+        s2 = np.zeros(n_cols * n_ch)
         wsum = np.zeros(n_cols)
         count = np.zeros(n_cols, np.int32)
         for i in range(n):
             _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
                         base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den)
-            _welford_row(num, den, True, n_ch, mean, m2, wsum, count)
-        _store_moments(y, n_ch, mean, m2, wsum, count, out_mean, out_var, out_wsum, out_count)
+            _accumulate_row(num, den, True, n_ch, shift, s1, s2, wsum, count)
+        _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean, out_var, out_wsum, out_count)
 
 
 @njit(cache=True, parallel=True)
@@ -263,20 +279,21 @@ def moments_tiles(views, n_ch, weights, has_weight, base, frac, tiles, out_mean,
         width = x1 - x0
         num = np.empty(n_cols * n_ch)
         den = np.empty(n_cols)
-        mean = np.empty(width * n_ch)
-        m2 = np.empty(width * n_ch)
+        shift = np.empty(width * n_ch)
+        s1 = np.empty(width * n_ch)
+        s2 = np.empty(width * n_ch)
         wsum = np.empty(width)
         count = np.empty(width, np.int32)
         for y in range(y0, y1):
-            mean[:] = 0.0
-            m2[:] = 0.0
+            s1[:] = 0.0
+            s2[:] = 0.0
             wsum[:] = 0.0
             count[:] = 0
             for i in range(n):
                 _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
                             base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den, x0, x1)
-                _welford_row(num[x0 * n_ch:x1 * n_ch], den[x0:x1], True, n_ch, mean, m2, wsum, count)
-            _store_moments(y, n_ch, mean, m2, wsum, count, out_mean[:, x0:x1], out_var[:, x0:x1],
+                _accumulate_row(num[x0 * n_ch:x1 * n_ch], den[x0:x1], True, n_ch, shift, s1, s2, wsum, count)
+            _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean[:, x0:x1], out_var[:, x0:x1],
                            out_wsum[:, x0:x1], out_count[:, x0:x1])
 
 
@@ -285,13 +302,14 @@ def stack_moments(values, n_ch, weights, out_mean, out_var, out_wsum, out_count)
     """:func:`moments` of an already shifted stack: values ``(n, Y, X*C)``, weights ``(n, Y, X)``."""
     n, n_rows, n_cols = values.shape[0], values.shape[1], values.shape[2] // n_ch
     for y in prange(n_rows):
-        mean = np.zeros(n_cols * n_ch)
-        m2 = np.zeros(n_cols * n_ch)
+        shift = np.zeros(n_cols * n_ch)
+        s1 = np.zeros(n_cols * n_ch)
+        s2 = np.zeros(n_cols * n_ch)
         wsum = np.zeros(n_cols)
         count = np.zeros(n_cols, np.int32)
         for i in range(n):
-            _welford_row(values[i, y], weights[i, y], False, n_ch, mean, m2, wsum, count)
-        _store_moments(y, n_ch, mean, m2, wsum, count, out_mean, out_var, out_wsum, out_count)
+            _accumulate_row(values[i, y], weights[i, y], False, n_ch, shift, s1, s2, wsum, count)
+        _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean, out_var, out_wsum, out_count)
 
 
 @njit(cache=True, parallel=True)
@@ -321,6 +339,17 @@ def stack_mean(values, n_ch, weights, view_weights, out):
 BINOMIAL5 = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
 
 
+@njit(cache=True, inline="always")
+def _binomial_taps(center, n):
+    """The summed weight of the 5-tap kernel's taps that fall inside ``0 .. n - 1`` around ``center``."""
+    k = BINOMIAL5
+    total = 0.0
+    for t in range(5):
+        if 0 <= center + t - 2 < n:
+            total += k[t]
+    return total
+
+
 @njit(cache=True, parallel=True)
 def pyr_down(images, weights, has_weight, per_weight, out, out_weights):
     """Binomial blur and 2x decimation of ``images (m, Y, X)`` into ``out (m, ceil(Y/2), ceil(X/2))``.
@@ -328,34 +357,61 @@ def pyr_down(images, weights, has_weight, per_weight, out, out_weights):
     Taps outside the image, or of weight 0, carry no weight: each output is
     the normalised convolution ``sum k w x / sum k w``. ``weights (m / per_weight, Y, X)``
     are shared by ``per_weight`` consecutive images (the channels of one view);
-    With weights, ``out_weights`` receives the valid fraction of the
-    in-bounds kernel weight; without, it is not written.
+    with weights, ``out_weights`` receives the valid fraction of the
+    in-bounds kernel weight; without, it is not written. Rows and columns
+    whose five taps all lie inside take a branch-free (vectorised) path.
     """
     m, n_rows, n_cols = images.shape
     out_rows, out_cols = out.shape[1], out.shape[2]
-    k = BINOMIAL5
+    k0, k1, k2 = BINOMIAL5[0], BINOMIAL5[1], BINOMIAL5[2]
     for job in prange(m * out_rows):
         i = job // out_rows
         yo = job % out_rows
         w_i = i // per_weight if has_weight else 0
         acc = np.zeros(n_cols)
         acc_w = np.zeros(n_cols)
-        k_rows = 0.0
-        for t in range(5):
-            y = 2 * yo + t - 2
-            if y < 0 or y >= n_rows:
-                continue
-            kt = k[t]
-            k_rows += kt
-            if has_weight:
-                for x in range(n_cols):
-                    w = kt * weights[w_i, y, x]
-                    acc[x] += w * images[i, y, x]
-                    acc_w[x] += w
-            else:
-                for x in range(n_cols):
-                    acc[x] += kt * images[i, y, x]
-                    acc_w[x] += kt
+        y_c = 2 * yo
+        if not has_weight and 2 <= y_c < n_rows - 2:
+            r0, r1, r2, r3, r4 = images[i, y_c - 2], images[i, y_c - 1], images[i, y_c], images[i, y_c + 1], images[i, y_c + 2]
+            for x in range(n_cols):
+                acc[x] = k0 * (r0[x] + r4[x]) + k1 * (r1[x] + r3[x]) + k2 * r2[x]
+            acc_w[:] = 1.0
+        else:
+            for t in range(5):
+                y = y_c + t - 2
+                if y < 0 or y >= n_rows:
+                    continue
+                kt = BINOMIAL5[t]
+                if has_weight:
+                    for x in range(n_cols):
+                        w = kt * weights[w_i, y, x]
+                        acc[x] += w * images[i, y, x]
+                        acc_w[x] += w
+                else:
+                    for x in range(n_cols):
+                        acc[x] += kt * images[i, y, x]
+                        acc_w[x] += kt
+        k_rows = _binomial_taps(y_c, n_rows)
+        row = out[i, yo]
+        if not has_weight:
+            # acc_w is constant along the row: one division for the whole row
+            norm = 1.0 / acc_w[0]
+            for xo in range(1, (n_cols - 3) // 2 + 1):
+                x = 2 * xo
+                row[xo] = (k0 * (acc[x - 2] + acc[x + 2]) + k1 * (acc[x - 1] + acc[x + 1]) + k2 * acc[x]) * norm
+            for xo in range(out_cols):
+                x = 2 * xo
+                if 2 <= x < n_cols - 2:
+                    continue
+                total = 0.0
+                k_cols = 0.0
+                for t in range(5):
+                    xx = x + t - 2
+                    if 0 <= xx < n_cols:
+                        total += BINOMIAL5[t] * acc[xx]
+                        k_cols += BINOMIAL5[t]
+                row[xo] = total * norm / k_cols
+            continue
         for xo in range(out_cols):
             total = 0.0
             total_w = 0.0
@@ -363,11 +419,11 @@ def pyr_down(images, weights, has_weight, per_weight, out, out_weights):
             for t in range(5):
                 x = 2 * xo + t - 2
                 if 0 <= x < n_cols:
-                    total += k[t] * acc[x]
-                    total_w += k[t] * acc_w[x]
-                    k_cols += k[t]
-            out[i, yo, xo] = total / total_w if total_w > 0.0 else 0.0
-            if has_weight and i % per_weight == 0:
+                    total += BINOMIAL5[t] * acc[x]
+                    total_w += BINOMIAL5[t] * acc_w[x]
+                    k_cols += BINOMIAL5[t]
+            row[xo] = total / total_w if total_w > 0.0 else 0.0
+            if i % per_weight == 0:
                 out_weights[w_i, yo, xo] = total_w / (k_rows * k_cols)
 
 

@@ -363,8 +363,10 @@ class AliasingDetector:
         level = _validate.integer_at_least("level", level, 0)
         if not self._levels:
             self._levels = [self._luminance_and_ranges(self.lf, self.luminance == "rec709", 0)]
-        if level >= len(self._levels):
-            self._levels = lightfield_pyramid(self._levels[0], level)
+        while len(self._levels) <= level:  # one level at a time, each from the one before
+            coarser = lightfield_pyramid(self._levels[-1], 1)[1]
+            coarser.meta["pyramid_level"] = len(self._levels)
+            self._levels.append(coarser)
         return self._levels[level]
 
     def _luminance_and_ranges(self, lf, combine, level):

@@ -118,23 +118,32 @@ def _from_level(level_mask, shape, level):
     return level_mask[np.ix_(rows, cols)]
 
 
-def _expanded(image, level, weights):
-    """Level ``level`` of ``image``'s Gaussian pyramid, expanded back to the size of ``image``.
+def _level_renderings(image, levels, weights):
+    """Levels ``1 .. max(levels)`` of ``image``'s Gaussian pyramid, each expanded back to full size.
 
     ``weights (Y, X)`` are the pixels the pyramid may pool (normalised
     convolution): the aliased ones, so that the in-focus content around
-    them does not bleed into their coarse rendering.
+    them does not bleed into their coarse rendering. The pyramid is built
+    once; only the levels in ``levels`` are expanded.
+
+    Returns
+    -------
+    dict of int to ndarray (Y, X, C)
     """
-    shapes = [image.shape[:2]]
+    shapes, pyramid = [image.shape[:2]], []
     reduced = image
-    for _ in range(level):
+    for _ in range(max(levels)):
         reduced, weights = pyr_down(reduced, weights)
         shapes.append(reduced.shape[:2])
-    num, den = reduced * weights[..., None], weights
-    for shape in reversed(shapes[:-1]):
-        num, den = pyr_up(num, shape), pyr_up(den, shape)
-    out = np.zeros_like(num)
-    np.divide(num, den[..., None], out=out, where=den[..., None] > 1e-6)
+        pyramid.append((reduced * weights[..., None], weights))
+    out = {}
+    for level in levels:
+        num, den = pyramid[level - 1]
+        for shape in reversed(shapes[:level]):
+            num, den = pyr_up(num, shape), pyr_up(den, shape)
+        rendering = np.zeros_like(num)
+        np.divide(num, den[..., None], out=rendering, where=den[..., None] > 1e-6)
+        out[level] = rendering
     return out
 
 
@@ -210,8 +219,9 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
     level_map[still] = max_level
     if not level_map.any():
         return Reduction(refocused, level_map, first.cv, refocused, detections)
-    used = range(1, int(level_map.max()) + 1)
-    pooled = (level_map > 0).astype(np.float32)
-    sources = [_expanded(refocused, level, pooled) if np.any(level_map == level) else refocused for level in used]
+    present = np.flatnonzero(np.bincount(level_map.ravel(), minlength=max_level + 1))
+    renderings = _level_renderings(refocused, [int(level) for level in present if level > 0],
+                                   (level_map > 0).astype(np.float32))
+    sources = [renderings.get(level, refocused) for level in range(1, int(level_map.max()) + 1)]
     image = fuse_gradients(refocused, sources, level_map, method=solver, screen=screen)
     return Reduction(image, level_map, first.cv, refocused, detections)

@@ -256,10 +256,12 @@ class ViewMoments:
 def view_moments(lf, slope, stack=None):
     """Mean and population variance across the shifted views, per pixel.
 
-    One pass of a weighted Welford update per pixel: deviations are taken
-    from the running mean (never ``E[x^2] - E[x]^2``) and summed in
-    float64, so float32 data with a large offset keep their precision. The
-    shifted views are not stored.
+    One pass over the views: each pixel sums the weighted deviations of
+    its samples from its first sample, and their squares, in float64
+    (never ``E[x^2] - E[x]^2`` of the raw values), so float32 data with a
+    large offset keep their precision (the result equals a weighted
+    Welford update to float32 precision, and vectorises). The shifted
+    views are not stored.
 
     Parameters
     ----------

@@ -6,13 +6,12 @@ import pytest
 pytest.importorskip("napari")
 
 import napari_lfalias as lfa  # noqa: E402
-from napari_lfalias._napari._conversion_widget import (  # noqa: E402
-    LensletConversionWidget,
-    grid_centres,
-)
+from napari_lfalias._napari._conversion_widget import LensletConversionWidget  # noqa: E402
 from napari_lfalias._napari._layers import lightfield_of  # noqa: E402
 
 pytestmark = pytest.mark.napari
+
+from test_napari_jobs import no_leaked_worker_threads  # noqa: E402,F401  (autouse: no thread outlives a test)
 
 PLUGIN = "napari-lfalias"
 TIMEOUT_MS = 60000
@@ -55,13 +54,23 @@ def test_calibration_draws_the_fitted_microlens_centres(make_napari_viewer, qtbo
     widget.calibrate()
     _finish(qtbot, widget)
     points = _role_layers(viewer, "grid")[0]
-    expected = grid_centres(calibrate(white, dark=dark))
-    np.testing.assert_allclose(points.data, expected, atol=1e-6)
+    expected = calibrate(white, dark=dark)
+    assert widget.grid == expected
+    np.testing.assert_array_equal(points.data, expected.centres)
     # ~15.4 px pitch on a 436 px frame: hundreds of lenses, all on the image
-    assert 400 < len(points.data) < 1200
+    assert 700 < len(points.data) < 850
     assert points.data.min() >= -1 and points.data.max() <= 437
+    # one circle of the lens' diameter per lens
+    np.testing.assert_allclose(points.size, expected.pitch)
     background = _role_layers(viewer, "white")[0]
     assert background.data.shape == (436, 436)
+    # the circles sit on the lens discs: the white image is brighter at the centres than between them
+    centres = np.round(points.data).astype(int)
+    between = np.clip(centres + np.round(expected.pitch / 2).astype(int), 0, 435)
+    on = background.data[centres[:, 0], centres[:, 1]]
+    off = background.data[between[:, 0], between[:, 1]]
+    assert np.median(on) > 2 * np.median(off)
+    assert widget.save_button.isEnabled()
     # calibrating again replaces the layers instead of piling them up
     widget.calibrate()
     qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
@@ -77,8 +86,52 @@ def test_conversion_adds_the_decoded_lightfield(make_napari_viewer, qtbot, guv):
     _finish(qtbot, widget)
     layer = next(layer for layer in viewer.layers if lightfield_of(layer) is not None)
     expected = lfa.load(raw, white=white, dark=dark)
-    np.testing.assert_array_equal(lightfield_of(layer).data, expected.data)
-    assert layer.name == raw.stem
+    lf = lightfield_of(layer)
+    np.testing.assert_array_equal(lf.data, expected.data)
+    np.testing.assert_array_equal(lf.weights, expected.weights)
+    assert layer.name == raw.stem and lf.shape == (15, 15, 28, 28, 1)
+    assert lf.meta["microscope"]["na"] == 1.2  # the optics beside the capture came along
+    assert widget.grid == expected.meta["grid"]  # kept: "Save grid" can write it
+    assert widget.shutdown()
+
+
+def test_converting_after_calibration_uses_the_grid_drawn(make_napari_viewer, qtbot, guv, tmp_path):
+    raw, white, dark = guv
+    viewer = make_napari_viewer()
+    widget = _conversion_widget(viewer, raw, white, dark)
+    widget.calibrate()
+    _finish(qtbot, widget)
+    drawn = widget.grid
+    widget.convert()
+    _finish(qtbot, widget)
+    lf = lightfield_of(next(layer for layer in viewer.layers if lightfield_of(layer) is not None))
+    assert lf.meta["grid"] is drawn
+    # the saved grid opens the capture again without the white image's calibration step
+    saved = widget.save_grid(tmp_path / "guv.grid.json")
+    assert saved == tmp_path / "guv.grid.json"
+    again = lfa.load(raw, white=white, dark=dark, grid=saved)
+    np.testing.assert_array_equal(again.data, lf.data)
+    # an existing file is not replaced unless asked: the failure is shown, not raised
+    assert widget.save_grid(saved) is None
+    assert "saving the grid failed" in widget.status.text() and "guv.grid.json" in widget.status.text()
+    assert widget.save_grid(saved, overwrite=True) == saved
+    assert widget.shutdown()
+
+
+def test_grid_kind_is_passed_to_the_calibration(make_napari_viewer, qtbot, guv):
+    raw, white, dark = guv
+    viewer = make_napari_viewer()
+    widget = _conversion_widget(viewer, raw, white, dark)
+    widget.kind_combo.setCurrentText("hexagonal")  # wrong for this rectangular grid: no fit
+    widget.calibrate()
+    qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
+    status = widget.status.text()
+    assert "calibrate failed" in status and "Radiometry_GUVExperim1.tif" in status and "lattice" in status
+    assert widget.grid is None and not _role_layers(viewer, "grid")
+    widget.kind_combo.setCurrentText("rectangular")
+    widget.calibrate()
+    _finish(qtbot, widget)
+    assert widget.grid.kind == "rectangular"
     assert widget.shutdown()
 
 
@@ -128,6 +181,8 @@ def test_guv_sample_opens_decoded(make_napari_viewer):
     folder = sample_data_dir() / "guv"
     expected = lfa.load(folder / GUV[0], white=folder / GUV[1], dark=folder / GUV[2])
     np.testing.assert_array_equal(lf.data, expected.data)
+    assert lf.shape == (15, 15, 28, 28, 1)
+    assert lf.meta["microscope"]["magnification"] == 60.0
 
 
 def test_brick_room_sample_is_the_synthetic_scene(make_napari_viewer):

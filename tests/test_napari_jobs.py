@@ -6,9 +6,23 @@ import pytest
 
 pytest.importorskip("napari")
 
-from napari_lfalias._napari._jobs import JobRunner  # noqa: E402
+from napari_lfalias._napari._jobs import JobRunner, Partial  # noqa: E402
 
 pytestmark = pytest.mark.napari
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_worker_threads(qtbot):
+    """After each test, no worker thread of the global Qt pool is left running.
+
+    Imported by the other napari test modules, where it is autouse too.
+    """
+    yield
+    from qtpy.QtCore import QThreadPool
+
+    pool = QThreadPool.globalInstance()
+    assert pool.waitForDone(30000), "a worker thread outlived its test"
+    assert pool.activeThreadCount() == 0
 
 
 def _blocking_job(release, value, steps):
@@ -104,3 +118,49 @@ def test_shutdown_waits_for_threads(qtbot):
     assert runner.shutdown(timeout_s=5)
     assert QThreadPool.globalInstance().waitForDone(5000)
     assert QThreadPool.globalInstance().activeThreadCount() == 0
+
+
+def test_partial_results_arrive_before_the_result_and_go_stale_too(qtbot):
+    runner = JobRunner()
+    seen = []
+
+    def job():
+        yield Partial("image")
+        yield (1, 2)
+        return "cv"
+
+    runner.submit("a", lambda: (job(), lambda r: seen.append(("result", r)),
+                                lambda v: seen.append(("partial", v))))
+    _wait_idle(qtbot, runner)
+    assert seen == [("partial", "image"), ("result", "cv")]
+
+    release, steps, dropped = threading.Event(), [], []
+
+    def slow():
+        yield from _blocking_job(release, "x", steps)
+        yield Partial("late image")
+        return "late"
+
+    runner.submit("a", lambda: (slow(), dropped.append, dropped.append))
+    qtbot.waitUntil(lambda: len(steps) > 0, timeout=5000)
+    runner.bump()
+    release.set()
+    _wait_idle(qtbot, runner)
+    assert dropped == []
+
+
+def test_errors_of_stale_jobs_are_still_reported(qtbot):
+    errors = []
+    runner = JobRunner(on_error=lambda slot, error: errors.append(str(error)))
+    release, steps = threading.Event(), []
+
+    def job():
+        yield from _blocking_job(release, "x", steps)
+        raise RuntimeError("out of memory while shifting")
+
+    runner.submit("a", lambda: (job(), print))
+    qtbot.waitUntil(lambda: len(steps) > 0, timeout=5000)
+    runner.bump()
+    release.set()
+    _wait_idle(qtbot, runner)
+    assert errors == ["out of memory while shifting"]

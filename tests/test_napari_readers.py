@@ -18,6 +18,8 @@ from napari_lfalias._napari._layers import lightfield_of  # noqa: E402
 
 pytestmark = pytest.mark.napari
 
+from test_napari_jobs import no_leaked_worker_threads  # noqa: E402,F401  (autouse: no thread outlives a test)
+
 PLUGIN = "napari-lfalias"
 GUV = ("Lightfield_GUVExperim1.tif", "Radiometry_GUVExperim1.tif", "DarkFrame_GUVExperim1.tif")
 
@@ -96,7 +98,59 @@ def test_guv_lenslet_capture_opens_with_its_white_and_dark(make_napari_viewer, l
     expected = lfa.load(folder / GUV[0], white=folder / GUV[1], dark=folder / GUV[2])
     np.testing.assert_array_equal(lf.data, expected.data)
     _check_layer_shows(layer, lf)
-    assert lf.grid_shape[0] >= 5 and lf.grid_shape[1] >= 5
+    assert lf.grid_shape == (15, 15)
+    assert lf.meta["dark"] is not None  # the dark frame beside it was used
+    # the microscope optics of the README beside it: 60x / NA 1.2 in water (n = 1.35)
+    assert lf.meta["microscope"] == {"ulens_pitch_um": 100.0, "pixel_size_um": 6.5, "magnification": 60.0,
+                                     "na": 1.2, "medium_index": 1.35}
+
+
+def test_antleg_png_capture_pairs_with_its_radiometry_frame(make_napari_viewer, lf_data):
+    folder = lf_data / "napari_lf_antleg"
+    assert _reader.find_calibration_frames(folder / "light_field.png") == (
+        folder / "radiometry_frame.png", None)
+    viewer = make_napari_viewer()
+    layer, lf = _open_one(viewer, folder / "light_field.png")
+    expected = lfa.load(folder / "light_field.png", white=folder / "radiometry_frame.png")
+    np.testing.assert_array_equal(lf.data, expected.data)
+    _check_layer_shows(layer, lf)
+    assert lf.meta["microscope"]["magnification"] == 20.0
+
+
+def test_lenslet_capture_opens_with_a_grid_model_saved_beside_it(make_napari_viewer, lf_data, tmp_path):
+    from napari_lfalias.decoders import calibrate
+    from napari_lfalias.io_write import write_json
+
+    source = lf_data / "napari_lf_guv"
+    shutil.copy(source / GUV[0], tmp_path / "capture.tif")  # no white image beside it
+    assert _reader.get_lenslet_reader(str(tmp_path / "capture.tif")) is None
+    grid = calibrate(source / GUV[1], dark=source / GUV[2])
+    write_json(tmp_path / "capture.grid.json", grid)
+    viewer = make_napari_viewer()
+    layer, lf = _open_one(viewer, tmp_path / "capture.tif")
+    expected = lfa.load(tmp_path / "capture.tif", grid=tmp_path / "capture.grid.json")
+    np.testing.assert_array_equal(lf.data, expected.data)
+    assert lf.meta["grid"] == grid and lf.meta["white"] is None
+
+
+def test_lenslet_capture_opens_with_its_white_image_given(make_napari_viewer, lf_data, tmp_path):
+    # names the pairing beside it would not find: the capture is opened together with its frames
+    source = lf_data / "napari_lf_guv"
+    paths = [tmp_path / "a" / "cells.tif", tmp_path / "b" / "cells_white.tif", tmp_path / "b" / "cells_dark.tif"]
+    for path, name in zip(paths, GUV):
+        path.parent.mkdir(exist_ok=True)
+        shutil.copy(source / name, path)
+    assert _reader.get_lenslet_reader(str(paths[0])) is None  # nothing beside it
+    viewer = make_napari_viewer()
+    layers = viewer.open([str(p) for p in (paths[1], paths[0], paths[2])], stack=True, plugin=PLUGIN)
+    assert len(layers) == 1 and layers[0].name == "cells"
+    lf = lightfield_of(layers[0])
+    expected = lfa.load(paths[0], white=paths[1], dark=paths[2])
+    np.testing.assert_array_equal(lf.data, expected.data)
+    # two captures and no white, or a white of another size: not a capture with its frames
+    assert _reader.get_lenslet_reader([str(paths[0]), str(paths[2])]) is None
+    iio.imwrite(tmp_path / "small_white.tif", np.zeros((40, 40), np.uint16))
+    assert _reader.get_lenslet_reader([str(paths[0]), str(tmp_path / "small_white.tif")]) is None
 
 
 def test_lenslet_pairing_by_name_in_tmp(make_napari_viewer, lf_data, tmp_path):
@@ -120,6 +174,48 @@ def test_lenslet_pairing_by_name_in_tmp(make_napari_viewer, lf_data, tmp_path):
 # -- Lytro --------------------------------------------------------------------------------
 
 
+def _lenslet_frames(shape, pitch, rng):
+    """A white image (lens discs on a rectangular lattice) and a capture of a textured plane."""
+    y, x = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    fy, fx = (y - 3.3) / pitch, (x - 5.1) / pitch
+    radius = np.hypot(fy - np.round(fy), fx - np.round(fx))
+    white = np.clip(1.0 - (radius / 0.47) ** 4, 0.0, 1.0) * 0.8
+    texture = 0.3 + 0.6 * rng.random((shape[0] // int(pitch) + 2, shape[1] // int(pitch) + 2))
+    lens = texture[np.round(fy).astype(int) + 1, np.round(fx).astype(int) + 1]
+    return white, white * lens
+
+
+def _write_f01_raw(path, image):
+    """A bare Lytro F01 sensor file (12-bit packed) with its JSON metadata beside it."""
+    import json
+
+    from test_sensor import _pack_f01
+
+    black, top = 168, 4095
+    counts = np.clip(black + image * (top - black), 0, top).round().astype(np.uint16)
+    path.write_bytes(_pack_f01(counts))
+    levels = {channel: None for channel in ("r", "gr", "gb", "b")}
+    meta = {"image": {"rawDetails": {
+        "mosaic": {"tile": "r,gr:gb,b", "upperLeftPixel": "b"},
+        "pixelFormat": {"black": dict.fromkeys(levels, black), "white": dict.fromkeys(levels, top)}}}}
+    path.with_suffix(".json").write_text(json.dumps(meta))
+
+
+@pytest.mark.slow
+def test_lytro_raw_capture_opens_with_its_white_image(make_napari_viewer, tmp_path):
+    white, capture = _lenslet_frames((3280, 3280), 13.7, np.random.default_rng(3))
+    _write_f01_raw(tmp_path / "IMG_0007.raw", capture)
+    _write_f01_raw(tmp_path / "IMG_0007_white.raw", white)
+    assert _reader.get_lytro_reader(str(tmp_path / "IMG_0007_white.raw")) is None  # the white itself
+    viewer = make_napari_viewer()
+    layer, lf = _open_one(viewer, tmp_path / "IMG_0007.raw")
+    expected = lfa.load(tmp_path / "IMG_0007.raw", white=tmp_path / "IMG_0007_white.raw")
+    np.testing.assert_array_equal(lf.data, expected.data)
+    _check_layer_shows(layer, lf)
+    assert lf.meta["grid"].pitch == pytest.approx(13.7, abs=0.02)
+    assert lf.grid_shape == (13, 13) and lf.n_channels == 3
+
+
 def test_processed_lytro_file_is_claimed_and_fails_clearly(make_napari_viewer, lf_data):
     # The only real LFP files offline hold a processed focal stack, not sensor data.
     path = lf_data / "lytro_lfp_processed_samples" / "IMG_0001-stk.lfp"
@@ -127,7 +223,8 @@ def test_processed_lytro_file_is_claimed_and_fails_clearly(make_napari_viewer, l
     viewer = make_napari_viewer()
     with pytest.raises(Exception) as info:
         viewer.open(path, plugin=PLUGIN)
-    assert "IMG_0001-stk.lfp" in str(info.value) or "IMG_0001-stk.lfp" in str(info.value.__cause__)
+    message = str(info.value) + str(info.value.__cause__)
+    assert "IMG_0001-stk.lfp" in message and "processed Lytro picture" in message
     assert len(viewer.layers) == 0
 
 
@@ -148,6 +245,18 @@ def test_readers_decline_unrelated_files(tmp_path):
     assert _reader.get_camera_array_reader(str(tmp_path / "sub")) is None  # no view names
     assert _reader.get_camera_array_reader(str(tmp_path / "photo.png")) is None  # a file
     assert _reader.get_lenslet_reader([str(tmp_path / "photo.png")] * 2) is None  # a stack
+    (tmp_path / "short.raw").write_bytes(b"\x00" * 1000)
+    assert _reader.get_lytro_reader(str(tmp_path / "short.raw")) is None  # not a Lytro sensor size
+    # a JSON beside a capture that is not a grid model, and a grid of another size
+    (tmp_path / "photo.grid.json").write_text('{"format": "something else"}')
+    assert _reader.get_lenslet_reader(str(tmp_path / "photo.png")) is None
+    from napari_lfalias.decoders import GridModel
+
+    grid = GridModel("rectangular", pitch=8.0, rotation=0.0, offset=(4.0, 4.0), n_rows=5, n_cols=5,
+                     image_shape=(40, 40))
+    (tmp_path / "photo.grid.json").write_text(grid.to_json())
+    assert _reader.get_lenslet_reader(str(tmp_path / "photo.png")) is None  # fitted on 40 x 40, not 32 x 32
+    assert _reader.find_grid_file(tmp_path / "photo.png") == tmp_path / "photo.grid.json"
 
 
 def test_lenslet_reader_declines_white_dark_and_mismatched_sizes(tmp_path):

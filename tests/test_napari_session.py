@@ -1,10 +1,13 @@
-"""The widget's session: the exact Cv it shows, and its caches (no viewer needed)."""
+"""The widget's session: what it computes is the public API's, and its caches (no viewer needed)."""
+
+import threading
 
 import numpy as np
 import pytest
 
 import napari_lfalias as lfa
-from napari_lfalias._napari._session import AliasingSession, DetectionParams, exact_detection
+from napari_lfalias._napari._jobs import Partial
+from napari_lfalias._napari._session import AliasingSession, DetectionParams, focus_range
 
 pytestmark = pytest.mark.napari
 
@@ -15,7 +18,7 @@ def _textured(shape, seed=0):
 
 
 def _run(generator):
-    """Drive a session job to its end (as a worker would) and return its result."""
+    """Drive a session job to its end (as a worker would); return its result and what it yielded."""
     steps = []
     try:
         while True:
@@ -24,54 +27,137 @@ def _run(generator):
         return stop.value, steps
 
 
-def test_exact_cv_is_the_limit_of_many_random_patterns():
-    # Algorithm 1 by brute force: N random k-subsets (k uniform on
-    # ceil((1-gamma) n) .. n), Cv = population std / mean of their refocused luminance.
-    lf = _textured((3, 3, 12, 12, 3), seed=6)
-    slope, gamma, n_patterns = 0.6, 0.3, 20000
-    luminance = lf.luminance()
-    stack = lfa.shift_views(luminance, slope)
-    n = stack.n_views
-    rng = np.random.default_rng(0)
-    low = int(np.ceil((1 - gamma) * n))
-    refocused = []
-    for _ in range(n_patterns):
-        k = rng.integers(low, n + 1)
-        pattern = np.zeros(n, np.float32)
-        pattern[rng.choice(n, k, replace=False)] = 1
-        refocused.append(stack.mean(pattern)[..., 0])
-    refocused = np.array(refocused, np.float64)
-    monte_carlo = refocused.std(axis=0) / refocused.mean(axis=0)
-    moments = lfa.view_moments(luminance, slope)
-    exact = exact_detection(moments, DetectionParams(gamma=gamma, threshold=0.02)).cv
-    inside = (slice(1, -1), slice(1, -1))  # every view sees the interior
-    np.testing.assert_allclose(exact[inside], monte_carlo[inside], rtol=0.05)
-    assert np.abs(exact[inside] - monte_carlo[inside]).mean() < 0.02 * monte_carlo[inside].mean()
+def _partials(steps):
+    return [step.value for step in steps if isinstance(step, Partial)]
 
 
-def test_session_focus_is_the_api_refocus_and_keeps_its_moments():
-    lf = _textured((4, 4, 20, 24, 3), seed=7)
-    session = AliasingSession(lf)
-    params = DetectionParams(gamma=0.25)
-    (image, detection), steps = _run(session.focus(0.8, params))
-    assert steps and all(done <= total for done, total in steps)
-    np.testing.assert_allclose(image, lfa.refocus(lf, 0.8), atol=1e-6)
-    moments = lfa.view_moments(lf.luminance(), 0.8)
-    np.testing.assert_allclose(detection.cv, exact_detection(moments, params).cv, rtol=1e-5, atol=1e-7)
-    # T only re-thresholds; gamma re-detects from the kept moments
-    kept = session._moments
-    other = session.cached_detection(0.8, DetectionParams(gamma=0.25, threshold=0.05))
-    np.testing.assert_array_equal(other.mask, detection.cv > 0.05)
-    (_, regamma), _ = _run(session.focus(0.8, DetectionParams(gamma=0.5)))
-    assert session._moments is kept
-    assert not np.allclose(regamma.cv, detection.cv)
+@pytest.fixture(scope="module")
+def room():
+    from napari_lfalias.synthetic import brick_room
+
+    return brick_room(n_views=4, size=96, seed=3).lightfield
 
 
-def test_exact_factor_falls_with_gamma_and_is_zero_for_one_view():
-    lf = _textured((3, 3, 8, 8, 1), seed=8)
-    moments = lfa.view_moments(lf, 0.0)
-    low = exact_detection(moments, DetectionParams(gamma=0.1)).cv
-    high = exact_detection(moments, DetectionParams(gamma=0.6)).cv
-    assert np.all(high >= low) and high.mean() > low.mean()
-    single = lfa.LightField(lf.data[:1, :1])
-    assert not exact_detection(lfa.view_moments(single, 0.0), DetectionParams()).cv.any()
+def test_focus_gives_the_api_refocus_and_exact_cv(room):
+    session = AliasingSession(room)
+    params = DetectionParams(gamma=0.25, threshold=0.01)
+    (image, detection), steps = _run(session.focus(4.0, params))
+    assert not _partials(steps)  # the detector was free: image and Cv come together
+    assert all(done <= total for done, total in steps)
+    np.testing.assert_array_equal(image, lfa.refocus(room, 4.0))
+    # every Cv is computed (skip_flat=False): equal to the API's everywhere ...
+    full = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01, skip_flat=False)
+    np.testing.assert_array_equal(detection.cv, full.cv)
+    np.testing.assert_array_equal(detection.mask, full.mask)
+    # ... and to the default call wherever that one evaluates, with the same mask
+    default = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01)
+    np.testing.assert_array_equal(detection.cv[default.evaluated], default.cv[default.evaluated])
+    np.testing.assert_array_equal(detection.mask, default.mask)
+    assert detection.mask.any() and not detection.mask.all()
+
+
+def test_dark_floor_and_border_factors_are_the_cores(room):
+    # a dark corner and a border where fewer views see the pixel: the core's floor and factors apply
+    data = room.data.copy()
+    data[:, :, :24, :24] *= 0.001
+    lf = lfa.LightField(data, room.positions)
+    detection, _ = _run(AliasingSession(lf).detect(2.5, DetectionParams()))
+    expected = lfa.detect_aliasing(lf, 2.5, skip_flat=False)
+    np.testing.assert_array_equal(detection.cv, expected.cv)
+    np.testing.assert_array_equal(detection.cv_scale, expected.cv_scale)
+    assert len(np.unique(detection.cv_scale)) > 1  # border pixels have their own factor
+
+
+def test_threshold_rethresholds_the_kept_detection(room):
+    session = AliasingSession(room)
+    params = DetectionParams(threshold=0.02)
+    detection, _ = _run(session.detect(-4.0, params))
+    lower = session.detection(-4.0, DetectionParams(threshold=0.002))
+    assert lower is not None and lower.cv is detection.cv  # nothing recomputed, even when lowered
+    np.testing.assert_array_equal(lower.mask, detection.cv > np.float32(0.002))
+    assert lower.mask.sum() > detection.mask.sum()
+    # another slope, gamma or method: nothing kept
+    assert session.detection(-3.0, params) is None
+    assert session.detection(-4.0, DetectionParams(gamma=0.3)) is None
+    assert session.detection(-4.0, DetectionParams(method="monte_carlo")) is None
+
+
+def test_new_gamma_and_seed_reuse_the_shifted_views(room):
+    session = AliasingSession(room)
+    _run(session.detect(1.0, DetectionParams()))
+    detector = session.detector
+    moments = detector._moments[0]
+    regamma, _ = _run(session.detect(1.0, DetectionParams(gamma=0.5)))
+    assert detector._moments[0] is moments  # the same moments: no view shifted again
+    np.testing.assert_array_equal(regamma.cv, lfa.detect_aliasing(room, 1.0, gamma=0.5, skip_flat=False).cv)
+
+    mc = DetectionParams(method="monte_carlo", n_patterns=12, seed=4)
+    first, _ = _run(session.detect(1.0, mc))
+    stack = detector._stacks[0]
+    reseeded, _ = _run(session.detect(1.0, DetectionParams(method="monte_carlo", n_patterns=12, seed=5)))
+    assert detector._stacks[0] is stack
+    expected = lfa.detect_aliasing(room, 1.0, n_patterns=12, method="monte_carlo", seed=5, skip_flat=False)
+    np.testing.assert_array_equal(reseeded.cv, expected.cv)
+    assert not np.array_equal(first.cv, reseeded.cv)
+
+
+def test_reduce_is_the_api_reduction_with_the_sessions_detector(room):
+    session = AliasingSession(room)
+    params = DetectionParams(threshold=0.01, max_level=2)
+    reduction, _ = _run(session.reduce(4.0, params))
+    expected = lfa.reduce_aliasing(room, 4.0, threshold=0.01, max_level=2, seed=0)
+    np.testing.assert_array_equal(reduction.level, expected.level)
+    np.testing.assert_array_equal(reduction.image, expected.image)
+    assert reduction.level.max() > 0
+
+
+def test_a_job_waiting_for_the_detector_yields_and_refocuses_meanwhile(room):
+    session = AliasingSession(room)
+    _run(session.detect(0.0, DetectionParams()))  # the detector exists
+    session._lock.acquire()  # as a running reduction would hold it
+    try:
+        job = session.focus(2.0, DetectionParams())
+        steps = [next(job) for _ in range(6)]
+    finally:
+        session._lock.release()
+    (image,) = _partials(steps)  # the refocused image came before the lock
+    np.testing.assert_array_equal(image, lfa.refocus(room, 2.0))
+    assert steps[-1] == (1, 2)  # still waiting, yielding: a worker can stop it here
+    (again, detection), _ = _run(job)
+    assert again is image
+    np.testing.assert_array_equal(detection.cv, lfa.detect_aliasing(room, 2.0, skip_flat=False).cv)
+    assert not session._lock.locked()
+    # without detection (Monte Carlo asks for it in its own job): the image alone
+    (image, nothing), steps = _run(session.focus(1.0, DetectionParams(), detect=False))
+    assert nothing is None and not _partials(steps)
+    np.testing.assert_array_equal(image, lfa.refocus(room, 1.0))
+
+
+def test_jobs_in_two_threads_share_the_detector_safely(room):
+    session = AliasingSession(room)
+    results = {}
+
+    def work(name, job):
+        results[name] = _run(job)[0]
+
+    threads = [
+        threading.Thread(target=work, args=("reduce", session.reduce(4.0, DetectionParams(threshold=0.01)))),
+        threading.Thread(target=work, args=("detect", session.detect(-1.5, DetectionParams()))),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    np.testing.assert_array_equal(results["detect"].cv, lfa.detect_aliasing(room, -1.5, skip_flat=False).cv)
+    np.testing.assert_array_equal(results["reduce"].image,
+                                  lfa.reduce_aliasing(room, 4.0, threshold=0.01, seed=0).image)
+
+
+def test_focus_range_from_metadata_or_the_data_geometry(room):
+    assert focus_range(room) == pytest.approx((-4.0, 4.0))  # the brick room's disparity range
+    lf = _textured((3, 3, 16, 16, 1))
+    assert focus_range(lf) == (-2.0, 2.0)  # capped at 2 px per view step
+    guv_like = _textured((15, 15, 28, 28, 1))
+    assert focus_range(guv_like) == (-1.0, 1.0)  # the outermost view moves a quarter of 28 px
+    with_map = lfa.LightField(lf.data, meta={"disparity": np.array([[-1.0, 0.5]])})
+    assert focus_range(with_map) == pytest.approx((-1.15, 0.65))

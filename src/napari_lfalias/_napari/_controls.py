@@ -1,4 +1,4 @@
-"""Small Qt controls the widgets share."""
+"""Small Qt controls and helpers the widgets share."""
 
 from __future__ import annotations
 
@@ -7,7 +7,32 @@ import math
 from qtpy.QtCore import Qt, Signal
 from qtpy.QtWidgets import QHBoxLayout, QLabel, QSlider, QWidget
 
-__all__ = ["LogSlider"]
+__all__ = ["LogSlider", "report_failure"]
+
+
+def report_failure(status, what, error):
+    """Show that ``what`` failed: in the widget's ``status`` label and as a napari notification.
+
+    Parameters
+    ----------
+    status : QLabel
+        The widget's status line.
+    what : str
+        What failed ("reduce", "calibrate", "saving the grid", ...).
+    error : Exception
+        The error; its message (which names the file or parameter) is shown.
+
+    Returns
+    -------
+    str
+        The message shown.
+    """
+    from napari.utils.notifications import show_error
+
+    message = f"{what} failed: {error}"
+    status.setText(message)
+    show_error(message)
+    return message
 
 
 class LogSlider(QWidget):

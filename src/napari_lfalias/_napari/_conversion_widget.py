@@ -1,10 +1,14 @@
 """Lenslet conversion widget: raw + white (+ dark) images in, a 4-D light field out.
 
 "Calibrate" fits the microlens grid to the white image and draws it over
-the white image (a Points layer of the microlens centres), to check the
-calibration by eye. "Convert" decodes the raw image with that white image
-into a light-field layer, which the main widget then works on. Both run in
-worker threads.
+the white image: a Points layer with one circle per microlens, of the
+lens' diameter, centred on the fitted centre, to check the calibration by
+eye (the circles should sit on the bright lens discs). "Convert" decodes
+the raw image into a light-field layer with that grid (calibrating first
+if needed), which the main widget then works on. "Save grid" writes the
+fitted grid as JSON, so the capture can later be opened directly (the
+lenslet reader finds a ``*grid*.json`` beside it). Calibration and
+conversion run in worker threads; errors are shown, never swallowed.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 from qtpy.QtWidgets import (
+    QComboBox,
     QFileDialog,
     QFormLayout,
     QHBoxLayout,
@@ -23,14 +28,15 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from ._controls import report_failure
 from ._jobs import JobRunner
-from ._layers import lightfield_layer_data
+from ._layers import ROLE_KEY, lightfield_layer_data
 from ._reader import find_calibration_frames
 
-__all__ = ["LensletConversionWidget", "FileField", "grid_centres"]
+__all__ = ["LensletConversionWidget", "FileField"]
 
-ROLE_KEY = "lfalias"
 _IMAGE_FILTER = "Images (*.tif *.tiff *.png *.dng *.lfr *.lfp *.raw);;All files (*)"
+GRID_KINDS = ("auto", "rectangular", "hexagonal")
 
 
 class FileField(QWidget):
@@ -64,17 +70,8 @@ class FileField(QWidget):
         self.edit.setText("" if path is None else str(path))
 
 
-def grid_centres(grid):
-    """The ``(n, 2)`` (row, col) microlens centres of a fitted grid model."""
-    for name in ("centres", "centers", "lens_centres", "lens_centers"):
-        value = getattr(grid, name, None)
-        if value is not None:
-            value = value() if callable(value) else value
-            return np.asarray(value, dtype=np.float64).reshape(-1, 2)
-    raise AttributeError(f"{type(grid).__name__} exposes no microlens centres")
-
-
 def _read_image(path):
+    """The white image as the grid was fitted on it: grey, float32."""
     from ..decoders.sensor import read_sensor
 
     image = np.asarray(read_sensor(path), dtype=np.float32)
@@ -87,6 +84,12 @@ class LensletConversionWidget(QWidget):
     Parameters
     ----------
     napari_viewer : napari.Viewer
+
+    Attributes
+    ----------
+    grid : GridModel or None
+        The grid fitted by the last calibration (used by "Convert" while
+        the white and dark images and the grid kind stay the same).
     """
 
     def __init__(self, napari_viewer):
@@ -95,20 +98,26 @@ class LensletConversionWidget(QWidget):
         self.raw_field = FileField("raw lenslet image")
         self.white_field = FileField("white (flat-field) image")
         self.dark_field = FileField("dark frame (optional)")
+        self.kind_combo = QComboBox()
+        self.kind_combo.addItems(GRID_KINDS)
         self.calibrate_button = QPushButton("Calibrate")
         self.convert_button = QPushButton("Convert")
+        self.save_button = QPushButton("Save grid...")
+        self.save_button.setEnabled(False)
         self.status = QLabel("")
         self.status.setWordWrap(True)
         self.jobs = JobRunner(on_error=self._on_error, on_idle=self._on_idle)
         self.grid = None
+        self._grid_inputs = None  # (white, dark, kind) the grid was fitted with
 
         form = QFormLayout()
         form.addRow("raw", self.raw_field)
         form.addRow("white", self.white_field)
         form.addRow("dark", self.dark_field)
+        form.addRow("grid", self.kind_combo)
         buttons = QHBoxLayout()
-        buttons.addWidget(self.calibrate_button)
-        buttons.addWidget(self.convert_button)
+        for button in (self.calibrate_button, self.convert_button, self.save_button):
+            buttons.addWidget(button)
         layout = QVBoxLayout(self)
         layout.addLayout(form)
         layout.addLayout(buttons)
@@ -118,6 +127,7 @@ class LensletConversionWidget(QWidget):
         self.raw_field.edit.editingFinished.connect(self._guess_frames)
         self.calibrate_button.clicked.connect(self.calibrate)
         self.convert_button.clicked.connect(self.convert)
+        self.save_button.clicked.connect(self._ask_save_grid)
 
     # -- inputs ---------------------------------------------------------------------
     def _guess_frames(self):
@@ -145,6 +155,15 @@ class LensletConversionWidget(QWidget):
         self.status.setText(f"{path}: no such file; choose an existing image.")
         return False
 
+    def _kind(self):
+        return self.kind_combo.currentText()
+
+    def _kept_grid(self, white, dark):
+        """The fitted grid if it was fitted on these inputs, else ``None``."""
+        if self.grid is not None and self._grid_inputs == (white, dark, self._kind()):
+            return self.grid
+        return None
+
     # -- calibration ------------------------------------------------------------------
     def calibrate(self):
         """Fit the microlens grid to the white image (in a worker) and draw it."""
@@ -156,6 +175,7 @@ class LensletConversionWidget(QWidget):
         if frames is None:
             return None
         white, dark = frames
+        kind = self._kind()
 
         def job():
             from ..decoders.lenslet import calibrate
@@ -163,31 +183,67 @@ class LensletConversionWidget(QWidget):
             yield (0, 2)
             image = _read_image(white)
             yield (1, 2)
-            grid = calibrate(white, dark=dark)
+            grid = calibrate(white, dark=dark, kind=kind)
             return image, grid
 
         def done(result):
             image, grid = result
-            self.grid = grid
+            self._keep_grid(grid, (white, dark, kind))
             self._show_grid(image, grid, white)
 
         return job(), done
 
-    def _show_grid(self, image, grid, white):
-        centres = grid_centres(grid)
-        name = f"white [{white.name}]"
-        self._replace_layer("white", name, lambda: self.viewer.add_image(
-            image, name=name, colormap="gray", metadata={ROLE_KEY: "white"}))
-        self._replace_layer("grid", f"microlens centres [{white.name}]", lambda: self.viewer.add_points(
-            centres, name=f"microlens centres [{white.name}]", size=max(1.0, _pitch(grid) / 4),
-            face_color="red", border_width=0, metadata={ROLE_KEY: "grid"}))
-        self.status.setText(f"{len(centres)} microlenses fitted on {white.name}")
+    def _keep_grid(self, grid, inputs):
+        self.grid, self._grid_inputs = grid, inputs
+        self.save_button.setEnabled(True)
 
-    def _replace_layer(self, role, name, add):
+    def _show_grid(self, image, grid, white):
+        """The white image and one circle per fitted microlens over it."""
+        self._replace_layer("white", lambda: self.viewer.add_image(
+            image, name=f"white [{white.name}]", colormap="gray", metadata={ROLE_KEY: "white"}))
+        self._replace_layer("grid", lambda: self.viewer.add_points(
+            grid.centres, name=f"microlens grid [{white.name}]", size=grid.pitch,
+            face_color="transparent", border_color="red", border_width=0.06,
+            metadata={ROLE_KEY: "grid", "grid": grid}))
+        self.status.setText(f"{white.name}: {grid.describe()}; RMS residual "
+                            f"{grid.fit.get('rms_residual_px', float('nan')):.3g} px")
+
+    def _replace_layer(self, role, add):
         for layer in list(self.viewer.layers):
             if (layer.metadata or {}).get(ROLE_KEY) == role:
                 self.viewer.layers.remove(layer)
         return add()
+
+    # -- saving the grid ----------------------------------------------------------------
+    def _ask_save_grid(self):
+        raw = self.raw_field.path()
+        default = str(raw.with_name(f"{raw.stem}.grid.json")) if raw is not None else "grid.json"
+        path, _ = QFileDialog.getSaveFileName(self, "Save the grid model", default, "JSON (*.json)")
+        if path:
+            self.save_grid(path, overwrite=True)  # the dialog asked before replacing a file
+
+    def save_grid(self, path, overwrite=False):
+        """Write the fitted grid as JSON (atomically), for ``lfa.load(..., grid=path)``.
+
+        Returns
+        -------
+        Path or None
+            The file written; ``None`` (with the reason shown) when there is
+            no grid yet or the file could not be written.
+        """
+        from ..errors import LightFieldError
+        from ..io_write import write_json
+
+        if self.grid is None:
+            self.status.setText("Calibrate first: there is no grid to save.")
+            return None
+        try:
+            written = write_json(path, self.grid, overwrite=overwrite)
+        except (OSError, LightFieldError) as error:  # OutputExistsError is both
+            report_failure(self.status, "saving the grid", error)
+            return None
+        self.status.setText(f"grid saved to {written}")
+        return written
 
     # -- conversion -------------------------------------------------------------------
     def convert(self):
@@ -204,19 +260,24 @@ class LensletConversionWidget(QWidget):
         if frames is None or not self._exists(raw):
             return None
         white, dark = frames
+        grid, kind = self._kept_grid(white, dark), self._kind()
 
         def job():
             from .. import load
+            from ._optics import attach_optics
 
             yield (0, 1)
-            options = {"white": white}
-            if dark is not None:
-                options["dark"] = dark
+            options = {"white": white, "dark": dark, "grid": grid}
+            options = {key: value for key, value in options.items() if value is not None}
+            if grid is None and kind != "auto":
+                options["kind"] = kind
             lf = load(raw, **options)
             yield (1, 1)
-            return lf
+            return attach_optics(lf, raw)
 
         def done(lf):
+            if grid is None:
+                self._keep_grid(lf.meta["grid"], (white, dark, kind))
             data, kwargs, _ = lightfield_layer_data(lf, raw.stem)
             self.viewer.add_image(data, **kwargs)
             rows, cols = lf.grid_shape
@@ -237,11 +298,7 @@ class LensletConversionWidget(QWidget):
         self._set_busy(False)
 
     def _on_error(self, slot, error):
-        from napari.utils.notifications import show_error
-
-        message = f"{slot} failed: {error}"
-        self.status.setText(message)
-        show_error(message)
+        report_failure(self.status, slot, error)
 
     def shutdown(self):
         """Stop running jobs and wait for their threads."""
@@ -250,11 +307,3 @@ class LensletConversionWidget(QWidget):
     def closeEvent(self, event):
         self.shutdown()
         super().closeEvent(event)
-
-
-def _pitch(grid):
-    for name in ("pitch", "spacing", "lens_pitch"):
-        value = getattr(grid, name, None)
-        if value is not None:
-            return float(np.mean(value))
-    return 8.0

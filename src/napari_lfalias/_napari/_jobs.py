@@ -1,24 +1,73 @@
 """Background jobs for the widgets: one slot per kind of job, latest request wins.
 
 A job is a generator that yields ``(done, total)`` between steps and
-returns its result. A request is a function that makes the job when the
-slot is free, so a request that had to wait reads the controls as they are
-when it starts, not as they were when it was made. It runs in a napari ``thread_worker``; while it
-runs, the GUI thread keeps processing events. A new request for a busy
-slot asks the running job to stop (``quit()``: it stops at its next yield)
-and starts once the slot is free, so requests never pile up. Each request
-is stamped with a generation number; a result whose generation is no
-longer current is dropped.
+returns its result; it may also yield a :class:`Partial` (an early result,
+such as the refocused image before its Cv), handed to the request's
+``on_partial`` under the same staleness rule as the final result.
+
+A request is a function that makes the job when the slot is free, so a
+request that had to wait reads the controls as they are when it starts,
+not as they were when it was made. The job runs in a napari
+``thread_worker``; while it runs, the GUI thread keeps processing events. A
+new request for a busy slot asks the running job to stop (``quit()``: it
+stops at its next yield) and starts once the slot is free, so requests
+never pile up. Each request is stamped with a generation number; a result
+whose generation is no longer current is dropped. Errors are always
+reported, stale or not.
+
+napari and Qt are imported when a job starts, so :class:`Partial` can be
+used by code that runs without them (the session).
 """
 
 from __future__ import annotations
 
 import time
 
-from napari.qt.threading import GeneratorWorker, create_worker
-from qtpy.QtCore import QCoreApplication
+__all__ = ["JobRunner", "Partial"]
 
-__all__ = ["JobRunner"]
+
+class Partial:
+    """An early result a job yields before its final one.
+
+    Parameters
+    ----------
+    value : object
+        Handed to the request's ``on_partial(value)`` in the GUI thread.
+    """
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+
+class _Failed:
+    """What a guarded job yields when it raised (see :func:`_guarded`)."""
+
+    __slots__ = ("error",)
+
+    def __init__(self, error):
+        self.error = error
+
+
+_FAILED = object()
+
+
+def _guarded(generator):
+    """Run ``generator``, turning an exception into a yielded :class:`_Failed`.
+
+    superqt's workers treat a ``RuntimeError`` (and its subclasses, such as
+    ``NotImplementedError``) raised by the job as "the worker was deleted":
+    they warn and return without emitting ``errored`` or ``finished``, so
+    the error would be lost and the slot stay busy. Errors therefore never
+    leave the job; a yielded value is delivered even when the worker was
+    asked to quit meanwhile.
+    """
+    try:
+        return (yield from generator)
+    except Exception as error:  # every error is reported through the yield, none is raised
+        yield _Failed(error)
+        return _FAILED
 
 
 class JobRunner:
@@ -29,7 +78,8 @@ class JobRunner:
     on_progress : callable, optional
         ``on_progress(slot, done, total)`` on each yield of a job.
     on_error : callable, optional
-        ``on_error(slot, exception)`` when a job raises.
+        ``on_error(slot, exception)`` when a job raises (stale or not);
+        default: a napari error notification.
     on_idle : callable, optional
         ``on_idle()`` when the last running job has finished.
     """
@@ -39,7 +89,7 @@ class JobRunner:
         self._workers = {}
         self._pending = {}
         self._on_progress = on_progress
-        self._on_error = on_error
+        self._on_error = on_error or _notify_error
         self._on_idle = on_idle
 
     # -- state ---------------------------------------------------------------
@@ -67,10 +117,12 @@ class JobRunner:
         slot : str
             The kind of job (one job per slot at a time).
         make_job : callable
-            ``make_job()`` returns ``(generator, on_result)`` or ``None``
-            (nothing to do); it is called when the slot is free.
-            ``on_result(result)`` is called only if no parameter changed and
-            no newer request came for the slot while the job ran.
+            ``make_job()`` returns ``(generator, on_result)``,
+            ``(generator, on_result, on_partial)`` or ``None`` (nothing to
+            do); it is called when the slot is free. ``on_result(result)``
+            (and ``on_partial(value)`` for each :class:`Partial` the job
+            yields) is called only if no parameter changed and no newer
+            request came for the slot since the job started.
 
         If ``slot`` is busy, the running job is asked to stop and this
         request replaces any earlier one waiting for the slot.
@@ -96,6 +148,8 @@ class JobRunner:
         bool
             True if every job ended within ``timeout_s``.
         """
+        from qtpy.QtCore import QCoreApplication
+
         self.cancel()
         deadline = time.monotonic() + timeout_s
         while self._workers and time.monotonic() < deadline:
@@ -105,31 +159,45 @@ class JobRunner:
 
     # -- internals --------------------------------------------------------------
     def _start(self, slot, make_job):
+        from napari.qt.threading import GeneratorWorker, create_worker
+
         made = make_job()
         if made is None:
             self._finish(slot, None)
             return None
-        generator, on_result = made
+        generator, on_result = made[:2]
+        on_partial = made[2] if len(made) > 2 else None
         generation = self.generation
         worker = create_worker(
-            lambda: (yield from generator),
+            lambda: (yield from _guarded(generator)),
             _start_thread=False,
             _worker_class=GeneratorWorker,
             _ignore_errors=True,
         )
         self._workers[slot] = worker
 
+        def current():
+            return generation == self.generation and slot not in self._pending
+
         def returned(result):
-            if generation == self.generation and slot not in self._pending:
+            if result is not _FAILED and current():
                 on_result(result)
 
         def yielded(step):
-            if self._on_progress is not None and generation == self.generation:
+            if isinstance(step, _Failed):
+                # reported even for a superseded job: an error is never dropped
+                self._on_error(slot, step.error)
+                return
+            if not current():
+                return
+            if isinstance(step, Partial):
+                if on_partial is not None:
+                    on_partial(step.value)
+            elif self._on_progress is not None:
                 self._on_progress(slot, *step)
 
-        def errored(error):
-            if self._on_error is not None and generation == self.generation:
-                self._on_error(slot, error)
+        def errored(error):  # not expected (jobs are guarded), but never dropped
+            self._on_error(slot, error)
 
         def finished():
             self._finish(slot, worker)
@@ -149,3 +217,9 @@ class JobRunner:
             self._start(slot, waiting)
         elif not self._workers and self._on_idle is not None:
             self._on_idle()
+
+
+def _notify_error(slot, error):
+    from napari.utils.notifications import show_error
+
+    show_error(f"{slot} failed: {error}")

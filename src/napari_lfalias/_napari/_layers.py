@@ -35,12 +35,19 @@ SOURCE_KEY = "lfalias_source"
 #: ``layer.metadata`` key of the parameters an output was computed with.
 PARAMS_KEY = "lfalias_params"
 
+#: Colours of the aliasing mask (1 = aliased) and of the levels l* = 1..8 (0: transparent).
+MASK_COLOURS = {None: "transparent", 0: "transparent", 1: "#ffcc00"}
+LEVEL_COLOURS = {
+    None: "transparent", 0: "transparent", 1: "#4fc3f7", 2: "#66bb6a", 3: "#ffa726",
+    4: "#ef5350", 5: "#ab47bc", 6: "#8d6e63", 7: "#bdbdbd", 8: "#ffffff",
+}
+
 #: Output roles and how each is displayed.
 ROLES = {
     "refocus": {"layer_type": "image", "kwargs": {}},
     "cv": {"layer_type": "image", "kwargs": {"colormap": "magma", "blending": "additive"}},
-    "mask": {"layer_type": "labels", "kwargs": {"opacity": 0.45}},
-    "level": {"layer_type": "labels", "kwargs": {"opacity": 0.45}},
+    "mask": {"layer_type": "labels", "kwargs": {"opacity": 0.6, "colormap": MASK_COLOURS}},
+    "level": {"layer_type": "labels", "kwargs": {"opacity": 0.6, "colormap": LEVEL_COLOURS}},
     "fused": {"layer_type": "image", "kwargs": {}},
 }
 

@@ -1,14 +1,26 @@
-"""napari readers: camera-array folders, lenslet captures, Lytro files.
+"""napari readers: camera-array folders, lenslet captures, Lytro files, saved light fields.
 
 Each ``get_*_reader(path)`` is called by napari for every path that matches
 the manifest's patterns, so it must decide fast and say ``None`` for
-anything it does not handle: it looks only at file names and file headers,
-never at pixel data. Decoding happens in the returned reader function,
-through :func:`napari_lfalias.load`.
+anything it does not handle: it looks only at file names, sizes and
+headers, never at pixel data. Decoding happens in the returned reader
+function, through :func:`napari_lfalias.load`.
+
+A lenslet capture is claimed only with its calibration:
+
+- a white image beside it (a name with ``white``, ``radiometry`` or
+  ``flat``; a dark frame with ``dark`` or ``black`` is used too), of the
+  capture's size;
+- or a grid model saved beside it (``*grid*.json`` / ``*calib*.json``
+  written by ``lfalias convert --save-grid`` or the conversion widget),
+  fitted on an image of the capture's size;
+- or given: the capture opened together with its white (and dark) image,
+  ``viewer.open([capture, white, dark], stack=True)``.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import struct
 from pathlib import Path
@@ -21,25 +33,34 @@ __all__ = [
     "get_lenslet_reader",
     "get_lytro_reader",
     "find_calibration_frames",
+    "find_grid_file",
     "is_camera_array_folder",
 ]
 
 #: Fewest views that make a folder a light field.
 _MIN_VIEWS = 4
 
-_LENSLET_SUFFIXES = {".tif", ".tiff", ".png", ".dng"}
+_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".dng"}
+_LYTRO_SUFFIXES = {".lfr", ".lfp", ".raw"}
 _WHITE_WORDS = ("white", "radiometry", "flatfield", "flat")
 _DARK_WORDS = ("darkframe", "dark", "black")
+_GRID_WORDS = ("grid", "calib")
 _LYTRO_MAGIC = b"\x89LFP"
+#: A grid model JSON is small; larger ``.json`` files are not read.
+_GRID_MAX_BYTES = 1 << 20
+
+
+def _paths(path):
+    """The paths napari passes, as a list of Path."""
+    if isinstance(path, (list, tuple)):
+        return [Path(os.fspath(p)) for p in path]
+    return [Path(os.fspath(path))]
 
 
 def _single_path(path):
     """The one path napari passes, or ``None`` for a list of several paths."""
-    if isinstance(path, (list, tuple)):
-        if len(path) != 1:
-            return None
-        path = path[0]
-    return Path(os.fspath(path))
+    paths = _paths(path)
+    return paths[0] if len(paths) == 1 else None
 
 
 # -- camera arrays ------------------------------------------------------
@@ -72,10 +93,10 @@ def get_camera_array_reader(path):
     path = _single_path(path)
     if path is None or not path.is_dir() or not is_camera_array_folder(path):
         return None
-    return _read_with(path.name, {})
+    return _read_with(path, path.name, {})
 
 
-# -- lenslet captures -----------------------------------------------------
+# -- calibration beside a lenslet capture ------------------------------------
 
 
 def _has_word(path, words):
@@ -97,14 +118,33 @@ def _best_sibling(path, candidates):
     return max(candidates, key=lambda c: (_likeness(path, c), c.name))
 
 
-def find_calibration_frames(path):
-    """Find the white (and dark) image beside a lenslet raw image.
+def _siblings(path, suffixes):
+    """Files beside ``path`` (not itself) with one of ``suffixes``."""
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return []
+    return [
+        Path(entry.path)
+        for entry in entries
+        if entry.name != path.name
+        and Path(entry.name).suffix.lower() in suffixes
+        and entry.is_file()
+    ]
 
-    A white image is a sibling image file whose name contains ``white``,
-    ``radiometry`` or ``flat``; a dark frame one whose name contains
-    ``dark`` or ``black``. When there are several, the one whose name is
-    most like the raw image's wins (``Radiometry_GUV1.tif`` for
-    ``Lightfield_GUV1.tif``).
+
+def _is_calibration_frame(path):
+    return _has_word(path, _WHITE_WORDS + _DARK_WORDS)
+
+
+def find_calibration_frames(path):
+    """Find the white (and dark) image beside a lenslet capture.
+
+    A white image is a sibling of the same family (TIFF/PNG/DNG images, or
+    Lytro files) whose name contains ``white``, ``radiometry`` or ``flat``;
+    a dark frame one whose name contains ``dark`` or ``black``. When there
+    are several, the one whose name is most like the capture's wins
+    (``Radiometry_GUV1.tif`` for ``Lightfield_GUV1.tif``).
 
     Parameters
     ----------
@@ -118,22 +158,57 @@ def find_calibration_frames(path):
         white image beside it; ``dark`` is ``None`` when there is none.
     """
     path = Path(path)
-    if _has_word(path, _WHITE_WORDS + _DARK_WORDS):
+    if _is_calibration_frame(path):
         return None
-    try:
-        siblings = [
-            Path(entry.path)
-            for entry in os.scandir(path.parent)
-            if entry.is_file() and Path(entry.name).suffix.lower() in _LENSLET_SUFFIXES
-        ]
-    except OSError:
-        return None
-    siblings = [s for s in siblings if s.name != path.name]
+    family = _LYTRO_SUFFIXES if path.suffix.lower() in _LYTRO_SUFFIXES else _IMAGE_SUFFIXES
+    siblings = _siblings(path, family)
     white = _best_sibling(path, [s for s in siblings if _has_word(s, _WHITE_WORDS)])
     if white is None:
         return None
     dark = _best_sibling(path, [s for s in siblings if _has_word(s, _DARK_WORDS)])
     return white, dark
+
+
+def _grid_shape_of(path):
+    """``image_shape`` of a saved grid model, or ``None`` if ``path`` is not one."""
+    from ..decoders.grid import JSON_FORMAT
+
+    try:
+        if path.stat().st_size > _GRID_MAX_BYTES:
+            return None
+        data = json.loads(path.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(data, dict) or data.get("format") != JSON_FORMAT:
+        return None
+    shape = data.get("image_shape")
+    if not isinstance(shape, list) or len(shape) != 2:
+        return None
+    return tuple(int(v) for v in shape)
+
+
+def find_grid_file(path, shape=None):
+    """A lenslet grid model saved beside ``path`` (``*grid*.json``, ``*calib*.json``).
+
+    Parameters
+    ----------
+    path : Path
+        The raw lenslet image.
+    shape : tuple of int, optional
+        ``(rows, cols)`` of the capture: only a model fitted on an image of
+        that size is returned.
+
+    Returns
+    -------
+    Path or None
+    """
+    path = Path(path)
+    candidates = [s for s in _siblings(path, {".json"}) if _has_word(s, _GRID_WORDS)]
+    candidates = [c for c in candidates if (found := _grid_shape_of(c)) and (shape is None or found == shape)]
+    return _best_sibling(path, candidates)
+
+
+# -- image headers ------------------------------------------------------------
 
 
 def _png_shape(path):
@@ -152,42 +227,92 @@ def _tiff_shape(path):
         with tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             return tuple(page.shape[:2])
-    except Exception:  # not a readable TIFF: not ours to claim
+    except Exception:  # tifffile raises many kinds; an unreadable TIFF is not ours to claim
         return None
 
 
 def _image_shape(path):
     """(rows, cols) of an image read from its header only, or ``None`` if unknown."""
     suffix = path.suffix.lower()
-    if suffix == ".png":
-        return _png_shape(path)
-    if suffix in (".tif", ".tiff"):
-        return _tiff_shape(path)
+    try:
+        if suffix == ".png":
+            return _png_shape(path)
+        if suffix in (".tif", ".tiff"):
+            return _tiff_shape(path)
+    except OSError:
+        return None
     return None
 
 
-def get_lenslet_reader(path):
-    """Reader for a lenslet raw image with a white image beside it.
+def _same_size(capture, frame):
+    """True when the headers say ``frame`` has the size of ``capture`` (DNG: not checked here)."""
+    if capture.suffix.lower() == ".dng" or frame.suffix.lower() == ".dng":
+        return True
+    shape = _image_shape(capture)
+    return shape is not None and shape == _image_shape(frame)
 
-    Returns ``None`` (fast: names and image headers only) for the white or
-    dark frames themselves, for images with no white image beside them,
-    and for images whose size differs from the white image's.
-    """
-    path = _single_path(path)
-    if path is None or path.suffix.lower() not in _LENSLET_SUFFIXES or not path.is_file():
-        return None
-    frames = find_calibration_frames(path)
-    if frames is None or _saved_header(path) is not None:
-        return None
-    white, dark = frames
-    if path.suffix.lower() != ".dng":
-        shape = _image_shape(path)
-        if shape is None or shape != _image_shape(white):
-            return None
-    options = {"white": white}
+
+# -- lenslet captures ---------------------------------------------------------
+
+
+def _options(white=None, dark=None, grid=None):
+    options = {"white": white} if white is not None else {}
     if dark is not None:
         options["dark"] = dark
-    return _read_with(path.stem, options)
+    if grid is not None:
+        options["grid"] = grid
+    return options
+
+
+def _beside(path):
+    """Decoding options from the calibration beside a capture, or ``None`` without one."""
+    frames = find_calibration_frames(path)
+    if frames is not None and (path.suffix.lower() in _LYTRO_SUFFIXES or _same_size(path, frames[0])):
+        return _options(*frames)
+    if path.suffix.lower() in _LYTRO_SUFFIXES:
+        grid = find_grid_file(path)
+    else:
+        shape = _image_shape(path)
+        grid = None if shape is None and path.suffix.lower() != ".dng" else find_grid_file(path, shape)
+    return None if grid is None else _options(grid=grid)
+
+
+def _given(paths):
+    """``(capture, options)`` for a capture opened with its white (and dark) image, else ``None``."""
+    if len(paths) not in (2, 3) or any(p.suffix.lower() not in _IMAGE_SUFFIXES for p in paths):
+        return None
+    whites = [p for p in paths if _has_word(p, _WHITE_WORDS)]
+    darks = [p for p in paths if p not in whites and _has_word(p, _DARK_WORDS)]
+    captures = [p for p in paths if p not in whites and p not in darks]
+    if len(whites) != 1 or len(darks) > 1 or len(captures) != 1:
+        return None
+    capture = captures[0]
+    if not all(p.is_file() and _same_size(capture, p) for p in paths if p is not capture):
+        return None
+    return capture, _options(whites[0], darks[0] if darks else None)
+
+
+def get_lenslet_reader(path):
+    """Reader for a lenslet raw image with its calibration (see the module notes).
+
+    Returns ``None`` (fast: names and image headers only) for the white or
+    dark frames themselves, for images with no white image or grid model
+    beside them, for a white image or grid of another size, and for light
+    fields saved by napari-lfalias (their own reader takes them).
+    """
+    paths = _paths(path)
+    if len(paths) > 1:
+        given = _given(paths)
+        if given is None or _saved_header(given[0]) is not None:
+            return None
+        return _read_with(given[0], given[0].stem, given[1])
+    path = paths[0]
+    if path.suffix.lower() not in _IMAGE_SUFFIXES or _is_calibration_frame(path) or not path.is_file():
+        return None
+    if _saved_header(path) is not None:
+        return None
+    options = _beside(path)
+    return None if options is None else _read_with(path, path.stem, options)
 
 
 # -- light fields saved by napari-lfalias ---------------------------------------
@@ -211,10 +336,9 @@ def get_saved_lightfield_reader(path):
     if _saved_header(path) is None:
         return None
 
-    def read_saved(path):
+    def read_saved(_path):
         from ..io_write import read_lightfield
 
-        path = _single_path(path)
         lf = read_lightfield(path, lazy=path.suffix.lower() == ".zarr")
         return [lightfield_layer_data(lf, path.stem)]
 
@@ -224,32 +348,56 @@ def get_saved_lightfield_reader(path):
 # -- Lytro ----------------------------------------------------------------
 
 
-def get_lytro_reader(path):
-    """Reader for Lytro ``.lfr`` / ``.lfp`` containers (checked by their magic bytes)."""
-    path = _single_path(path)
-    if path is None or path.suffix.lower() not in (".lfr", ".lfp") or not path.is_file():
-        return None
+def _lytro_sensor_bytes():
+    """Byte sizes of the packed Lytro F01 and Illum sensor images (bare ``.raw`` files)."""
+    from ..decoders import lytro
+
+    return {camera["bytes"] for camera in (lytro._F01, lytro._ILLUM)}
+
+
+def _is_lytro_file(path):
     try:
+        if path.suffix.lower() == ".raw":
+            return path.stat().st_size in _lytro_sensor_bytes()
         with open(path, "rb") as handle:
-            magic = handle.read(len(_LYTRO_MAGIC))
+            return handle.read(len(_LYTRO_MAGIC)) == _LYTRO_MAGIC
     except OSError:
+        return False
+
+
+def get_lytro_reader(path):
+    """Reader for Lytro ``.lfr`` / ``.lfp`` containers and bare sensor ``.raw`` files.
+
+    Containers are recognised by their magic bytes, ``.raw`` files by the
+    exact size of a packed F01 or Illum sensor. The file is claimed
+    whether or not a white image (or grid model) lies beside it: decoding
+    then uses it, or fails with a message that says what is missing (and a
+    processed picture -- a refocus stack, a depth map -- fails saying so).
+    """
+    path = _single_path(path)
+    if path is None or path.suffix.lower() not in _LYTRO_SUFFIXES or not path.is_file():
         return None
-    if magic != _LYTRO_MAGIC:
+    if _is_calibration_frame(path) or not _is_lytro_file(path):
         return None
-    return _read_with(path.stem, {})
+    return _read_with(path, path.stem, _beside(path) or {})
 
 
 # -- the reader function ----------------------------------------------------
 
 
-def _read_with(name, options):
-    """A napari reader function that decodes its path with ``lfa.load(path, **options)``."""
+def _read_with(source, name, options):
+    """A napari reader function that decodes ``source`` with ``lfa.load(source, **options)``.
 
-    def read_lightfield(path):
+    The function ignores the path napari hands it: ``source`` is what the
+    reader was built for (the capture of a list with its white image).
+    """
+
+    def read_lightfield(_path):
         from .. import load
+        from ._optics import attach_optics
 
-        path = _single_path(path)
-        lf = load(path, **options)
+        lf = load(source, **options)
+        attach_optics(lf, source)
         return [lightfield_layer_data(lf, name)]
 
     return read_lightfield

@@ -44,7 +44,9 @@ def guv_capture():
 
     The raw lenslet image is calibrated with its radiometry (white) and
     dark frames and sliced into views by
-    :func:`napari_lfalias.decoders.lenslet.load_lenslet`.
+    :func:`napari_lfalias.decoders.lenslet.load_lenslet`; the microscope
+    optics of its ``metadata.txt`` go into ``meta["microscope"]`` (the
+    widget then shows the axial position of the focus plane).
 
     Returns
     -------
@@ -53,11 +55,9 @@ def guv_capture():
     """
     from .. import load
     from .._paths import sample_data_dir
+    from ._optics import attach_optics
 
     folder = sample_data_dir() / "guv"
-    lf = load(
-        folder / GUV_FILES["raw"],
-        white=folder / GUV_FILES["white"],
-        dark=folder / GUV_FILES["dark"],
-    )
-    return [lightfield_layer_data(lf, "GUV capture")]
+    raw = folder / GUV_FILES["raw"]
+    lf = load(raw, white=folder / GUV_FILES["white"], dark=folder / GUV_FILES["dark"])
+    return [lightfield_layer_data(attach_optics(lf, raw), "GUV capture")]

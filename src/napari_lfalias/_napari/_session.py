@@ -1,28 +1,48 @@
 """The widget's computations for one light field, with their caches (no Qt here).
 
-What is cached follows DESIGN section 4: for the current slope the
-luminance moments of the shifted views (exact method) and the shifted stack
-(Monte Carlo) are kept, so changing gamma, N, the method or the seed
-re-detects without shifting the views again; the last detection is kept, so
-changing T only re-thresholds its Cv. Each computation is a generator that yields
-``(done, total)`` between its steps, so a worker running it can report
-progress and stop early when it is cancelled.
+A session holds one :class:`~napari_lfalias.detect.AliasingDetector` per
+light field, so the widget gets exactly what :func:`~napari_lfalias.detect_aliasing`
+gives (the dark floor, the hypergeometric border factors) and reuses what
+the detector keeps: the luminance and its pyramid (once per light field),
+the moments and shifted stacks of the last slope (a new gamma, N or seed
+does not shift the views again). The last detection is kept too, so a new
+threshold only re-thresholds it (:meth:`Detection.rethreshold`).
+
+The detector is made with ``skip_flat=False``. With the core's default,
+tiles that provably cannot reach ``T`` are not computed and read 0: a Cv
+*map* would show them as perfectly consistent, and lowering ``T`` below the
+threshold they were skipped at would need a new detection. With every Cv
+computed, the Cv layer is the true Cv everywhere (equal to
+``detect_aliasing(..., skip_flat=False)``, and to the default wherever the
+default evaluates), and moving ``T`` never recomputes anything. The cost
+is nil on textured scenes (no tile is flat) and small elsewhere.
+
+Each computation is a generator that yields ``(done, total)`` between its
+steps (and, when the Cv has to wait for the detector, a
+:class:`~._jobs.Partial` refocused image), so a worker running it reports
+progress and stops at the next yield when it is cancelled. The detector is not thread-safe: a job takes the session's lock
+around every call into it, and waits for the lock by yielding, so a job
+queued behind a reduction can still be stopped. Nothing is yielded while
+the lock is held.
 """
 
 from __future__ import annotations
 
-import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DetectionParams", "AliasingSession", "LiveDetection", "exact_detection", "focus_range"]
+from ._jobs import Partial
 
-#: Smallest mean luminance a Cv is divided by (dark pixels would blow Cv up).
-MEAN_FLOOR = 1e-3
+__all__ = ["DetectionParams", "AliasingSession", "focus_range"]
 
-#: Focus range used when the data carry no disparities, in pixels per view step.
-DEFAULT_FOCUS_RANGE = (-2.0, 2.0)
+#: Largest focus slope, in pixels per view step, when the data carry no disparities.
+DEFAULT_MAX_SLOPE = 2.0
+#: Without disparities, the extreme views shift by at most this fraction of the image.
+MAX_SHIFT_FRACTION = 0.25
+#: How long a job waits for the detector before yielding again (seconds).
+LOCK_POLL_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -36,7 +56,7 @@ class DetectionParams:
     seed: int = 0
     max_level: int = 3
 
-    def api_kwargs(self):
+    def detect_kwargs(self):
         """Keyword arguments of ``detect_aliasing`` and ``reduce_aliasing``."""
         return {
             "gamma": self.gamma,
@@ -47,10 +67,15 @@ class DetectionParams:
         }
 
     def detection_key(self, slope):
-        """What a Cv depends on (everything but the threshold and the level)."""
-        seed = self.seed if self.method == "monte_carlo" else None
-        n_patterns = self.n_patterns if self.method == "monte_carlo" else None
-        return (float(slope), self.gamma, n_patterns, self.method, seed)
+        """What a Cv depends on (everything but the threshold and the pyramid depth)."""
+        monte_carlo = self.method == "monte_carlo"
+        return (
+            float(slope),
+            self.gamma,
+            self.n_patterns if monte_carlo else None,
+            self.method,
+            self.seed if monte_carlo else None,
+        )
 
 
 def _finite_range(values):
@@ -61,12 +86,25 @@ def _finite_range(values):
     return float(values.min()), float(values.max())
 
 
+def _geometric_range(lf):
+    """+/- the slope at which the outermost view shifts by a quarter of the image (at most 2 px)."""
+    reach = float(np.abs(lf.positions).max(initial=0.0))
+    limit = DEFAULT_MAX_SLOPE
+    if reach > 0:
+        limit = min(limit, MAX_SHIFT_FRACTION * min(lf.image_shape) / reach)
+    limit = max(round(limit, 2), 0.01)
+    return (-limit, limit)
+
+
 def focus_range(lf):
     """The slope range a focus control should span for ``lf``.
 
     Uses ``lf.meta["disparity_range"]`` when the decoder set it, else the
     range of a ground-truth disparity map in the metadata (``"disparity"``,
-    ``"gt_disparity"``), padded by 10 %; else +/-2 px.
+    ``"gt_disparity"``), padded by 10 %. Without either: +/- the slope at
+    which the outermost view moves by a quarter of the image, at most 2 px
+    per view step (+/- 1 px for the 15 x 15 views of 28 x 28 px of the GUV
+    capture).
 
     Returns
     -------
@@ -85,54 +123,8 @@ def focus_range(lf):
             pad = 0.1 * max(span[1] - span[0], 0.5)
             span = (span[0] - pad, span[1] + pad)
     if span is None or not span[1] > span[0]:
-        return DEFAULT_FOCUS_RANGE
+        return _geometric_range(lf)
     return span
-
-
-@dataclass(frozen=True)
-class LiveDetection:
-    """An exact Cv map (from kept moments) and its mask at one threshold.
-
-    Offers what the widget uses of :class:`napari_lfalias.Detection`:
-    ``cv``, ``mask`` and ``rethreshold``.
-    """
-
-    cv: np.ndarray
-    threshold: float
-
-    @property
-    def mask(self):
-        """Aliased pixels: ``cv > threshold``."""
-        return self.cv > self.threshold
-
-    def rethreshold(self, threshold):
-        """The same Cv at another threshold."""
-        return LiveDetection(self.cv, float(threshold))
-
-
-def exact_detection(moments, params):
-    """Exact (N -> infinity) Monte-Carlo Cv from the luminance moments of the views.
-
-    DESIGN section 4: the mean of a uniformly random k-subset of the n views
-    that see a pixel has variance ``s^2 (n - k) / (k (n - 1))``; with k
-    uniform on ``ceil((1 - gamma) n) .. n`` the variance is
-    ``s^2 (n E[1/k] - 1) / (n - 1)``, and Cv is its square root over the
-    mean (floored).
-    """
-    count = np.asarray(moments.count).astype(np.intp, copy=False)
-    factors = _variance_factors(int(count.max()) if count.size else 0, params.gamma)
-    variance = moments.variance[..., 0] * factors[count]
-    cv = np.sqrt(variance, dtype=np.float32) / np.maximum(moments.mean[..., 0], MEAN_FLOOR)
-    return LiveDetection(cv.astype(np.float32, copy=False), params.threshold)
-
-
-def _variance_factors(n_max, gamma):
-    """``(n E[1/k] - 1) / (n - 1)`` for n = 0 .. n_max (0 where n < 2)."""
-    factors = np.zeros(n_max + 1, np.float32)
-    for n in range(2, n_max + 1):
-        k = np.arange(math.ceil((1 - gamma) * n - 1e-9), n + 1, dtype=np.float64)
-        factors[n] = (n * np.mean(1.0 / k) - 1.0) / (n - 1)
-    return factors
 
 
 class AliasingSession:
@@ -141,16 +133,15 @@ class AliasingSession:
     Parameters
     ----------
     lf : LightField
-        The light field (a lazy one is read into memory once, by the first job).
+        The light field (a lazy one is read into memory once, by the first
+        job, in its worker thread).
     """
 
     def __init__(self, lf):
         self._source = lf
-        self._lf = lf
-        self._luminance = None  # the luminance light field, made when needed
-        self._moments = None  # (slope, image, ViewMoments) of the last refocus
-        self._stack = None  # ShiftedStack for one slope
-        self._detection = None  # (key, Detection)
+        self._detector = None
+        self._lock = threading.Lock()
+        self._last = None  # (detection key, Detection)
 
     @property
     def source_lf(self):
@@ -158,127 +149,130 @@ class AliasingSession:
         return self._source
 
     @property
-    def lf(self):
-        """The light field, in memory (a lazy one is read on first use, in a worker)."""
-        if self._lf.is_lazy:
-            self._lf = self._lf.compute()
-        return self._lf
+    def detector(self):
+        """The session's AliasingDetector, or ``None`` before the first job made it."""
+        return self._detector
 
     def close(self):
-        """Free the caches."""
-        self._luminance = self._stack = self._detection = self._moments = None
+        """Drop the detector and the kept detection (a running job keeps its own reference)."""
+        self._detector = None
+        self._last = None
 
-    # -- caches -------------------------------------------------------------
-    def cached_stack(self, slope):
-        """The shifted stack for ``slope`` if it is cached, else ``None``."""
-        stack = self._stack
-        if stack is not None and stack.slope == float(slope):
-            return stack
-        return None
+    # -- the kept detection ----------------------------------------------------
+    def detection(self, slope, params):
+        """The kept detection for ``slope`` and ``params``, at ``params.threshold``.
 
-    def stack(self, slope):
-        """The views shifted for ``slope`` (computed once per slope)."""
-        from .. import shift_views
-
-        stack = self.cached_stack(slope)
-        if stack is None:
-            stack = shift_views(self.lf, float(slope))
-            self._stack = stack
-        return stack
-
-    def cached_detection(self, slope, params):
-        """The detection for ``slope`` and ``params``, thresholded at ``params.threshold``.
-
-        Returns ``None`` when no detection with the same Cv is cached. A
-        new threshold re-thresholds the cached Cv (no recomputation).
+        Returns ``None`` when no detection with the same Cv is kept (or,
+        with a detector that skips flat tiles, when the threshold was
+        lowered below the one they were skipped at: detect again then). A
+        new threshold re-thresholds the kept Cv without recomputing it.
         """
-        cached = self._detection
-        if cached is None or cached[0] != params.detection_key(slope):
+        from ..errors import ParameterError
+
+        kept = self._last
+        key = params.detection_key(slope)
+        if kept is None or kept[0] != key:
             return None
-        key, detection, threshold = cached
-        if threshold != params.threshold:
-            detection = detection.rethreshold(params.threshold)
-            self._detection = (key, detection, params.threshold)
+        detection = kept[1]
+        if detection.threshold != params.threshold:
+            try:
+                detection = detection.rethreshold(params.threshold)
+            except ParameterError:
+                return None
+            self._last = (key, detection)
         return detection
 
-    def _remember(self, slope, params, detection):
-        self._detection = (params.detection_key(slope), detection, params.threshold)
+    # -- the detector and its lock ---------------------------------------------
+    def _wait(self, step):
+        """Take the lock, yielding ``step`` while another job holds it."""
+        while not self._lock.acquire(timeout=LOCK_POLL_S):
+            yield step
 
-    # -- computations (generators yielding (done, total)) --------------------
-    @property
-    def luminance(self):
-        """The one-channel (Rec. 709) light field, made once: the exact Cv is taken on it."""
-        if self._luminance is None:
-            self._luminance = self.lf.luminance()
-        return self._luminance
+    def _locked(self, step, work):
+        """Run ``work()`` holding the lock (taken by yielding ``step``); return its result."""
+        yield from self._wait(step)
+        try:
+            return work()
+        finally:
+            self._lock.release()
 
-    def focus(self, slope, params, with_detection=True):
+    def _make_detector(self):
+        from ..detect import AliasingDetector
+
+        if self._detector is None:
+            self._detector = AliasingDetector(self._source, skip_flat=False)
+        return self._detector
+
+    def _ready(self, step):
+        """The detector, made on first use (reading a lazy light field)."""
+        detector = self._detector
+        if detector is None:
+            detector = yield from self._locked(step, self._make_detector)
+        return detector
+
+    def _detect(self, detector, slope, params):
+        """Detection at ``slope`` (the lock is held): the kept one, or a new one."""
+        detection = self.detection(slope, params)
+        if detection is None:
+            detection = detector.detect(slope, **params.detect_kwargs())
+            self._last = (params.detection_key(slope), detection)
+        return detection
+
+    # -- computations (generators yielding (done, total)) ----------------------
+    def _job(self, work):
+        """The generator of one job: make the detector, then return ``work(detector)`` run under the lock."""
+        detector = yield from self._ready((0, 2))
+        yield (1, 2)
+        return (yield from self._locked((1, 2), lambda: work(detector)))
+
+    def focus(self, slope, params, detect=True):
         """Refocus on ``slope`` and, if asked, detect aliasing there.
 
-        The exact method works from the refocus and the moments of the
-        shifted luminance; Monte Carlo goes through the shifted stack.
-        Yields ``(done, total)``; returns ``(image, detection or None)``.
+        Returns a job that yields ``(done, total)`` steps and returns
+        ``(image, detection)``: the refocused image ``(Y, X, C)`` and the
+        Detection (``None`` without ``detect``). The refocus needs no lock;
+        when the detector is busy (a reduction runs), the image is yielded
+        at once as a :class:`~._jobs.Partial` and the job then waits for the
+        detector. Otherwise both come together, so the viewer updates (and
+        redraws) once per focus change.
         """
+        from .. import refocus
+
         slope = float(slope)
-        if with_detection and params.method != "analytic":
-            return (yield from self._focus_from_stack(slope, params))
-        yield (0, 2)
-        image, moments = self._refocus_and_moments(slope)
-        if not with_detection:
+        detector = yield from self._ready((0, 2))
+        image = refocus(detector.lf, slope)
+        if not detect:
             return image, None
-        yield (1, 2)
-        detection = self.cached_detection(slope, params)
-        if detection is None:
-            detection = exact_detection(moments, params)
-            self._remember(slope, params, detection)
-        return image, detection
-
-    def _refocus_and_moments(self, slope):
-        """The refocused image and the luminance moments at ``slope``, kept for the last slope.
-
-        With the moments kept, a new gamma re-detects without touching the
-        views, as a cached shifted stack does for Monte Carlo.
-        """
-        from .. import refocus, view_moments
-
-        cached = self._moments
-        if cached is not None and cached[0] == slope:
-            return cached[1], cached[2]
-        image, moments = refocus(self.lf, slope), view_moments(self.luminance, slope)
-        self._moments = (slope, image, moments)
-        return image, moments
-
-    def _focus_from_stack(self, slope, params):
-        from .. import detect_aliasing
-
-        stack = self.stack(slope)
-        yield (1, 3)
-        image = stack.mean()
-        yield (2, 3)
-        detection = self.cached_detection(slope, params)
-        if detection is None:
-            detection = detect_aliasing(self.lf, slope, stack=stack, **params.api_kwargs())
-            self._remember(slope, params, detection)
+        if not self._lock.acquire(blocking=False):
+            yield Partial(image)
+            yield from self._wait((1, 2))
+        try:
+            detection = self._detect(detector, slope, params)
+        finally:
+            self._lock.release()
         return image, detection
 
     def detect(self, slope, params):
-        """Detect aliasing at ``slope`` (reusing the shifted stack).
+        """Detect aliasing at ``slope`` (reusing the detector's shifted views).
 
-        Yields ``(done, total)``; returns the Detection.
+        Returns a job that yields ``(done, total)`` and returns the Detection.
         """
-        image, detection = yield from self.focus(slope, params, with_detection=True)
-        return detection
+        slope = float(slope)
+        return self._job(lambda detector: self._detect(detector, slope, params))
 
     def reduce(self, slope, params):
-        """Reduce aliasing at ``slope`` (Algorithm 2).
+        """Reduce aliasing at ``slope`` (Algorithm 2) with the session's detector.
 
-        Yields ``(done, total)``; returns the Reduction.
+        Returns a job that yields ``(done, total)`` and returns the Reduction.
         """
         from .. import reduce_aliasing
 
-        yield (0, 1)
-        reduction = reduce_aliasing(
-            self.lf, float(slope), max_level=params.max_level, **params.api_kwargs()
-        )
-        yield (1, 1)
-        return reduction
+        slope = float(slope)
+
+        def work(detector):
+            return reduce_aliasing(
+                detector.source, slope, max_level=params.max_level, detector=detector,
+                **params.detect_kwargs(),
+            )
+
+        return self._job(work)

@@ -7,10 +7,14 @@ tagged ``layer.metadata["lfalias"]`` (``"refocus"``, ``"cv"``, ``"mask"``,
 in ``layer.metadata["lfalias_params"]``.
 
 Focus and T are live: moving the focus refocuses and (exact method)
-re-detects in a worker thread; moving T only re-thresholds the cached Cv.
-Monte Carlo detection and reduction run in workers with progress; a newer
-request or the Cancel button stops a running job at its next step, and a
-result computed for parameters that have changed since is dropped.
+re-detects in a worker thread, both shown together (one redraw), or the
+refocused image first when the Cv has to wait for a running reduction;
+moving T only re-thresholds the kept Cv, in the GUI thread. Monte
+Carlo detection and reduction run in workers with progress; a newer request
+or the Cancel button stops a running job at its next step, and a result
+computed for parameters that have changed since is dropped. The
+computations and their caches are in :mod:`._session` (one
+:class:`~napari_lfalias.detect.AliasingDetector` per light field).
 """
 
 from __future__ import annotations
@@ -32,11 +36,11 @@ from qtpy.QtWidgets import (
 )
 from superqt import QLabeledDoubleSlider
 
-from ._controls import LogSlider
+from ._controls import LogSlider, report_failure
 from ._jobs import JobRunner
+from ._depth import depth_label
 from ._layers import PARAMS_KEY, find_output_layer, lightfield_layers, lightfield_of, show_output
 from ._session import AliasingSession, DetectionParams, focus_range
-from ._depth import depth_label
 
 __all__ = ["AliasingWidget"]
 
@@ -222,9 +226,11 @@ class AliasingWidget(QWidget):
     def _on_threshold(self, _value=None):
         if self.session is None:
             return
-        detection = self.session.cached_detection(self.slope, self.params())
+        detection = self.session.detection(self.slope, self.params())
         if detection is not None:
             self._show_detection(detection, self.slope, with_cv=False)
+        elif self.live_check.isChecked():
+            self.detect()  # nothing kept for these parameters yet
 
     def _on_detection_params(self, _value=None):
         self.jobs.bump()
@@ -254,10 +260,16 @@ class AliasingWidget(QWidget):
     def reduce(self):
         """Reduce aliasing with the current controls (Algorithm 2) in a worker."""
         self.jobs.submit("reduce", self._reduce_job)
-        self._busy("reduce")
+        if self._busy("reduce"):
+            self.status.setText(f"reducing aliasing at slope {self.slope:.2f}...")
 
     def cancel(self):
-        """Stop running jobs; their results are dropped."""
+        """Stop running jobs; their results are dropped.
+
+        A job stops at its next step; a step already running in a numba
+        kernel (the reduction's solve) ends in the background, and its
+        result is dropped.
+        """
         self.jobs.cancel()
         self.status.setText("cancelled")
 
@@ -292,17 +304,23 @@ class AliasingWidget(QWidget):
             return None
         slope, params = self.slope, self.params()
         exact = params.method == "analytic"
-        job = self.session.focus(slope, params, with_detection=exact)
+        job = self.session.focus(slope, params, detect=exact)
+        shown = []
+
+        def refocused(image):  # early, while the Cv waits for a running reduction
+            self._show_refocus(image, slope)
+            shown.append(True)
 
         def done(result):
             image, detection = result
-            self._show_refocus(image, slope)
+            if not shown:
+                self._show_refocus(image, slope)
             if detection is not None:
                 self._show_detection(detection, slope)
             else:
-                self.detect()
+                self.detect()  # Monte Carlo: in its own slot, with progress
 
-        return job, done
+        return job, done, refocused
 
     def _detect_job(self):
         if self.session is None:
@@ -360,7 +378,7 @@ class AliasingWidget(QWidget):
         detection at the T the controls show now.
         """
         params = self.params()
-        detection = self.session.cached_detection(slope, params) or detection
+        detection = self.session.detection(slope, params) or detection
         meta = self._meta(slope, params)
         if with_cv:
             cv_layer = self._show("cv", detection.cv, meta)
@@ -381,7 +399,7 @@ class AliasingWidget(QWidget):
         meta = self._meta(slope, params)
         self._show("fused", self._image(reduction.image), meta,
                    contrast_limits=self._source_contrast())
-        self._show("level", np.asarray(reduction.level, dtype=np.int32), meta)
+        self._show("level", reduction.level, meta)
         self.status.setText(
             f"reduced at slope {slope:.2f}: levels up to {int(np.max(reduction.level))}"
         )
@@ -392,20 +410,18 @@ class AliasingWidget(QWidget):
     # left alone by the short focus jobs and moved only by detection and
     # reduction.
     def _busy(self, slot):
-        if self.jobs.busy(slot):
+        busy = self.jobs.busy(slot)
+        if busy:
             self.cancel_button.setEnabled(True)
             self.progress.setValue(0)
+        return busy
 
     def _on_progress(self, slot, done, total):
         if slot != "focus":
             self.progress.setValue(int(PROGRESS_STEPS * done / max(total, 1)))
 
     def _on_error(self, slot, error):
-        from napari.utils.notifications import show_error
-
-        message = f"{slot} failed: {error}"
-        self.status.setText(message)
-        show_error(message)
+        report_failure(self.status, slot, error)
 
     def _on_idle(self):
         self.cancel_button.setEnabled(False)

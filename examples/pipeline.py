@@ -12,9 +12,16 @@ brick room's dense-aperture reference); save figures (matplotlib, Agg) and
 the numbers (``metrics.json``) into the output folder.
 
 The same calls work on napari layer data: a light-field layer opened by the
-plugin carries its LightField in ``layer.metadata["lightfield"]``, and the
-arrays returned here (``refocus_sweep`` included, lazily) can be added back
-with ``viewer.add_image``.
+plugin carries its LightField in ``layer.metadata["lightfield"]``, and any
+``(U, V, Y, X[, C])`` image layer is one through ``lfa.LightField(layer.data)``
+(:func:`lightfield_of_layer`); the results go back as layer-data tuples
+(:func:`result_layers`, the focus sweep staying lazy: a dimension slider
+that computes the slope on screen only)::
+
+    lf = lightfield_of_layer(viewer.layers["views"])
+    numbers, arrays = run("figures/", lightfield=lf)
+    for data, kwargs, kind in result_layers(**arrays):
+        getattr(viewer, f"add_{kind}")(data, **kwargs)
 """
 
 from __future__ import annotations
@@ -28,7 +35,39 @@ import numpy as np
 
 import napari_lfalias as lfa
 from napari_lfalias import io_write
+from napari_lfalias.detect import AliasingDetector
 from napari_lfalias.sweep import aliasing_by_slope
+
+
+def lightfield_of_layer(layer):
+    """The LightField behind a napari layer: the plugin's own, or one made from the layer's data.
+
+    Parameters
+    ----------
+    layer : napari.layers.Layer
+        A light-field layer opened by the plugin (its LightField, with view
+        positions and metadata, is in ``layer.metadata["lightfield"]``), or
+        any image layer of shape ``(U, V, Y, X)`` or ``(U, V, Y, X, 3)``
+        (a regular grid of views is assumed).
+    """
+    lf = layer.metadata.get("lightfield")
+    return lf if isinstance(lf, lfa.LightField) else lfa.LightField(np.asarray(layer.data))
+
+
+def result_layers(lightfield, sweep, detection, reduction):
+    """The pipeline's arrays as napari layer-data tuples ``(data, kwargs, layer_type)``.
+
+    The focus sweep stays a lazy dask array: napari shows it with a slider
+    over the slopes and computes only the slope on screen.
+    """
+    grey = lightfield.n_channels == 1
+    return [
+        (sweep[..., 0] if grey else sweep, {"name": "focus sweep", "rgb": not grey}, "image"),
+        (detection.cv, {"name": "Cv", "colormap": "magma", "blending": "additive"}, "image"),
+        (detection.mask.astype(np.uint8), {"name": "aliased", "opacity": 0.45}, "labels"),
+        (reduction.level, {"name": "level l*", "opacity": 0.45}, "labels"),
+        (reduction.image[..., 0] if grey else reduction.image, {"name": "reduced", "rgb": not grey}, "image"),
+    ]
 
 
 def load_scene(name, size, n_views):
@@ -109,8 +148,12 @@ def quality(image, reference):
     return {"psnr": float(metrics.psnr(image, reference)), "ssim": float(metrics.ssim(image, reference))}
 
 
-def run(out, scene="brick", size=128, n_views=8, n_slopes=9, method="analytic", threshold=0.02, max_level=3):
-    """Run the pipeline; return the numbers written to ``metrics.json`` and the arrays behind them."""
+def run(out, scene="brick", size=128, n_views=8, n_slopes=9, method="analytic", threshold=0.02, max_level=3,
+        lightfield=None):
+    """Run the pipeline; return the numbers written to ``metrics.json`` and the arrays behind them.
+
+    ``lightfield`` (a LightField, from napari layer data for instance) replaces ``scene``.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -120,7 +163,10 @@ def run(out, scene="brick", size=128, n_views=8, n_slopes=9, method="analytic", 
     out.mkdir(parents=True, exist_ok=True)
     seconds = {}
     start = time.perf_counter()
-    lf, reference_of, description = load_scene(scene, size, n_views)
+    if lightfield is None:
+        lf, reference_of, description = load_scene(scene, size, n_views)
+    else:
+        lf, reference_of, description = lightfield, None, f"a given light field, {lightfield.shape}"
     seconds["load"] = time.perf_counter() - start
 
     # A focus sweep: nothing is computed until a slice is asked for.
@@ -132,12 +178,14 @@ def run(out, scene="brick", size=128, n_views=8, n_slopes=9, method="analytic", 
     chosen = float(slopes[int(np.argmax(fractions))])
     seconds["sweep"] = time.perf_counter() - start
 
+    # One detector serves the detection and the reduction (its luminance, pyramid and shifted views).
     start = time.perf_counter()
+    detector = AliasingDetector(lf)
     image = lfa.refocus(lf, chosen)
-    detection = lfa.detect_aliasing(lf, chosen, **detect_kw)
+    detection = detector.detect(chosen, **detect_kw)
     seconds["detect"] = time.perf_counter() - start
     start = time.perf_counter()
-    result = lfa.reduce_aliasing(lf, chosen, **detect_kw, max_level=max_level)
+    result = lfa.reduce_aliasing(lf, chosen, **detect_kw, max_level=max_level, detector=detector)
     seconds["reduce"] = time.perf_counter() - start
 
     reference = reference_of(chosen) if reference_of is not None else None
@@ -166,15 +214,13 @@ def run(out, scene="brick", size=128, n_views=8, n_slopes=9, method="analytic", 
     return numbers, {"lightfield": lf, "sweep": sweep, "detection": detection, "reduction": result}
 
 
-def show_in_napari(lf, sweep, detection, reduction):
+def show_in_napari(arrays):
     """Put the pipeline's arrays into a napari viewer (the sweep stays lazy: a slider)."""
     import napari
 
     viewer = napari.Viewer()
-    viewer.add_image(sweep if lf.n_channels == 3 else sweep[..., 0], name="focus sweep", rgb=lf.n_channels == 3)
-    viewer.add_image(detection.cv, name="Cv", colormap="magma", blending="additive")
-    viewer.add_labels(detection.mask.astype(np.uint8), name="aliased")
-    viewer.add_image(reduction.image if lf.n_channels == 3 else reduction.image[..., 0], name="reduced")
+    for data, kwargs, kind in result_layers(**arrays):
+        getattr(viewer, f"add_{kind}")(data, **kwargs)
     napari.run()
 
 
@@ -192,7 +238,7 @@ def main(argv=None):
     print(json.dumps({k: v for k, v in numbers.items() if not isinstance(v, list)}, indent=2))
     print(f"figures and metrics.json in {args.out}/")
     if args.napari:
-        show_in_napari(arrays["lightfield"], arrays["sweep"], arrays["detection"], arrays["reduction"])
+        show_in_napari(arrays)
 
 
 if __name__ == "__main__":

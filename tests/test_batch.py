@@ -14,7 +14,7 @@ import pytest
 distributed = pytest.importorskip("distributed")
 
 from napari_lfalias import io_write  # noqa: E402
-from napari_lfalias.batch import MARKER_DIR, plan_batch, run_batch, run_job  # noqa: E402
+from napari_lfalias.batch import MARKER_DIR, kernel_thread_budget, plan_batch, run_batch, run_job  # noqa: E402
 from napari_lfalias.cli import main  # noqa: E402
 from napari_lfalias.errors import OutputExistsError, ParameterError  # noqa: E402
 
@@ -71,7 +71,6 @@ def test_convert_batch_matches_the_serial_result(client, tmp_path):
 
 
 def test_convert_batch_of_view_folders(client, tmp_path):
-    pytest.importorskip("napari_lfalias.decoders.camera_array")
     import napari_lfalias as lfa
 
     folders = [write_views_folder(tmp_path / "in" / f"scene{i}", plane_lightfield(disparity=i - 1, seed=i))
@@ -122,19 +121,27 @@ def test_outputs_no_batch_wrote_are_kept_unless_overwrite(client, tmp_path):
     assert io_write.is_lightfield_file(out / "scene0.tif")
 
 
-def test_reduce_batch_matches_the_serial_result(client, tmp_path):
-    pytest.importorskip("napari_lfalias.reduce")
+@pytest.mark.parametrize("extra", [{}, {"threshold_scale": "angular", "threshold": 0.4, "solver": "dct"}])
+def test_reduce_batch_matches_the_serial_result_and_the_api(client, tmp_path, extra):
     import tifffile
 
+    import napari_lfalias as lfa
+
     inputs = write_inputs(tmp_path / "in", 3, size=40)
-    options = {"slope": 0.0, "gamma": 0.2, "threshold": 0.02, "max_level": 2, "method": "analytic"}
-    report = run_batch(inputs, tmp_path / "out", "reduce", client=client, **options)
+    options = {"gamma": 0.2, "threshold": 0.02, "max_level": 2, "method": "analytic", **extra}
+    report = run_batch(inputs, tmp_path / "out", "reduce", client=client, slope=0.0, **options)
     assert len(report.done) == 3
-    serial = run_serially(inputs, tmp_path / "serial", "reduce", **options)
+    serial = run_serially(inputs, tmp_path / "serial", "reduce", slope=0.0, **options)
     for i in range(3):
         for name in (f"scene{i}_reduced.tif", f"scene{i}_levels.tif"):
             np.testing.assert_array_equal(tifffile.imread(tmp_path / "out" / name), tifffile.imread(serial / name))
         assert (tmp_path / "out" / f"scene{i}_reduced.png").stat().st_size > 0
+        expected = lfa.reduce_aliasing(io_write.read_lightfield(inputs[i]), 0.0, **options)
+        np.testing.assert_array_equal(tifffile.imread(tmp_path / "out" / f"scene{i}_reduced.tif"),
+                                      expected.image[..., 0])
+        np.testing.assert_array_equal(tifffile.imread(tmp_path / "out" / f"scene{i}_levels.tif"), expected.level)
+    # Scenes 0 and 2 are planes off slope 0: something was fused there.
+    assert tifffile.imread(tmp_path / "out" / "scene0_levels.tif").max() > 0
 
 
 def _kill_a_running_worker(client, markers, killed, deadline):
@@ -207,6 +214,10 @@ def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, c
         ({"task": "reduce"}, "--slope"),
         ({"task": "sharpen"}, "task"),
         ({"fmt": "h5"}, "format"),
+        ({"task": "reduce", "slope": 0.0, "gamma": 1.5}, "gamma"),
+        ({"task": "reduce", "slope": 0.0, "solver": "magic"}, "solver"),
+        ({"task": "reduce", "slope": 0.0, "colour": "red"}, "colour"),
+        ({"task": "convert", "slope": 0.5}, "--task reduce"),
     ],
 )
 def test_plan_rejects_bad_batches(tmp_path, kwargs, match):
@@ -225,3 +236,123 @@ def test_plan_rejects_missing_inputs_and_clashing_names(tmp_path):
     with pytest.raises(ParameterError, match="both write scene0.tif"):
         plan_batch([inputs[0], twin], tmp_path / "out")
     assert not Path(tmp_path / "out").exists()
+
+
+def test_a_task_killed_between_its_outputs_is_redone(client, tmp_path):
+    """A marker left "running" never counts as done, even with every output name taken by older files."""
+    import tifffile
+
+    inputs = write_inputs(tmp_path / "in", 1, size=40)
+    out = tmp_path / "out"
+    options = {"slope": 0.0, "max_level": 2}
+    run_batch(inputs, out, "reduce", client=client, **options)
+    # The input changes; a re-run is killed after writing the first of its three outputs.
+    changed = plane_lightfield(disparity=2, seed=42, size=40)
+    io_write.write_lightfield(inputs[0], changed, overwrite=True)
+    [job] = plan_batch(inputs, out, "reduce", **options)
+    (out / MARKER_DIR / Path(job.marker).name).write_text(json.dumps({"key": job.key, "state": "running"}))
+    assert not job.is_done() and all(Path(p).exists() for p in job.outputs)
+    report = run_batch(inputs, out, "reduce", client=client, **options)
+    assert report.done == [str(inputs[0])]
+    import napari_lfalias as lfa
+
+    expected = lfa.reduce_aliasing(changed, 0.0, max_level=2)
+    np.testing.assert_array_equal(tifffile.imread(out / "scene0_levels.tif"), expected.level)
+
+
+def test_jobs_use_absolute_paths_and_report_inputs_as_given(tmp_path, monkeypatch):
+    write_inputs(tmp_path / "in", 2)
+    monkeypatch.chdir(tmp_path)
+    jobs = plan_batch(["in/scene0.tif", "in/scene1.tif"], "out", "convert")
+    assert [job.label for job in jobs] == ["in/scene0.tif", "in/scene1.tif"]
+    for job in jobs:
+        assert Path(job.source).is_absolute() and Path(job.source).exists()
+        assert all(Path(p).is_absolute() and Path(p).parent == tmp_path / "out" for p in job.outputs)
+    report = run_batch(["in/scene0.tif"], "out", "convert", workers=1)
+    assert report.done == ["in/scene0.tif"]
+    assert io_write.is_lightfield_file(tmp_path / "out" / "scene0.tif")
+
+
+def test_an_unreachable_scheduler_is_a_clear_error(tmp_path):
+    inputs = write_inputs(tmp_path / "in", 1)
+    with pytest.raises(ParameterError, match="cannot reach a dask scheduler"):
+        run_batch(inputs, tmp_path / "out", "convert", scheduler="tcp://127.0.0.1:1", connect_timeout=1)
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_missing_white_frame_is_a_clear_error(tmp_path):
+    inputs = write_inputs(tmp_path / "in", 1)
+    with pytest.raises(ParameterError, match="nowhite.tif: no such white frame"):
+        run_batch(inputs, tmp_path / "out", "convert", white=tmp_path / "nowhite.tif")
+
+
+def test_lenslet_captures_are_calibrated_once_and_decoded_as_in_serial(client, lf_data, tmp_path, monkeypatch):
+    """Two copies of the real GUV capture: the batch calibrates the white image once and ships the grid."""
+    import shutil
+
+    import napari_lfalias as lfa
+    from napari_lfalias.decoders import calibration
+
+    folder = lf_data / "napari_lf_guv"
+    raw, white, dark = (folder / f"{p}_GUVExperim1.tif" for p in ("Lightfield", "Radiometry", "DarkFrame"))
+    inputs = []
+    for name in ("first.tif", "second.tif"):
+        shutil.copy(raw, tmp_path / name)
+        inputs.append(tmp_path / name)
+    calls = []
+    original = calibration.calibrate
+
+    def counting(*args, **kwargs):
+        calls.append(args)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr("napari_lfalias.decoders.lenslet.calibrate", counting)
+    report = run_batch(inputs, tmp_path / "out", "convert", client=client, white=white, dark=dark)
+    assert report.ok and len(report.done) == 2
+    assert len(calls) == 1  # here, once; the workers got the grid model
+    expected = lfa.load(raw, white=white, dark=dark)
+    for name in ("first.tif", "second.tif"):
+        converted = io_write.read_lightfield(tmp_path / "out" / name)
+        np.testing.assert_array_equal(converted.data, expected.data)
+        np.testing.assert_array_equal(converted.weights, expected.weights)
+        assert converted.meta["grid"] == expected.meta["grid"]
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"workers": 0}, "workers must be"), ({"workers": 2, "scheduler": "tcp://127.0.0.1:1"}, "own workers")],
+)
+def test_bad_cluster_options_fail_before_anything_runs(tmp_path, kwargs, match):
+    inputs = write_inputs(tmp_path / "in", 1)
+    with pytest.raises(ParameterError, match=match):
+        run_batch(inputs, tmp_path / "out", "convert", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_batch_never_replaces_its_inputs(tmp_path):
+    inputs = write_inputs(tmp_path / "in", 2)
+    before = inputs[0].read_bytes()
+    with pytest.raises(ParameterError, match="is an input"):
+        run_batch(inputs, tmp_path / "in", "convert", overwrite=True)
+    assert inputs[0].read_bytes() == before and not (tmp_path / "in" / MARKER_DIR).exists()
+
+
+def _threads_in_a_task(budget):
+    import numba
+
+    from napari_lfalias.batch import _kernel_threads
+
+    with _kernel_threads(budget):
+        return numba.get_num_threads()
+
+
+def test_tasks_share_the_cores_of_their_host(client):
+    """2 single-threaded workers on one host: each task's kernels get half the cores, not all of them."""
+    budget = kernel_thread_budget(client)
+    assert set(budget) == set(client.scheduler_info()["workers"])
+    assert set(budget.values()) == {max(1, (os.cpu_count() or 1) // 2)}
+    assert client.submit(_threads_in_a_task, {address: 1 for address in budget}, pure=False).result() == 1
+    # Outside a worker (a serial run) nothing is limited.
+    import numba
+
+    assert _threads_in_a_task({"tcp://elsewhere:1": 1}) == numba.get_num_threads()

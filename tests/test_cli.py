@@ -3,7 +3,6 @@
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -31,12 +30,6 @@ def run(capsys, *argv):
     status = main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return status, out, err
-
-
-def needs(*modules):
-    """Skip unless these parts of the numeric core are installed (they are written concurrently)."""
-    for module in modules:
-        pytest.importorskip(f"napari_lfalias.{module}")
 
 
 def assert_one_line_error(err, *words):
@@ -94,7 +87,6 @@ def test_refocus_tiff_matches_the_api_and_is_sharp_at_the_plane(capsys, plane, t
 
 
 def test_refocus_and_info_on_a_folder_of_views(capsys, tmp_path):
-    needs("decoders.camera_array")
     from _cli_scenes import plane_lightfield, write_views_folder
 
     folder = write_views_folder(tmp_path / "views", plane_lightfield(disparity=-1, seed=5))
@@ -115,6 +107,25 @@ def test_refocus_png_is_an_8bit_preview(capsys, plane, tmp_path):
     assert pixels.dtype == np.uint8 and pixels.shape == lf.image_shape
     expected = np.round(np.clip(lfa.refocus(lf, 0.0)[..., 0], 0, 1) * 255)
     assert np.abs(pixels.astype(float) - expected).max() <= 1
+
+
+def test_a_dark_png_gets_a_note_and_auto_contrast_stretches_it(capsys, tmp_path):
+    from _cli_scenes import plane_lightfield
+
+    lf = plane_lightfield(seed=3)
+    dim = lfa.LightField(lf.data * 0.05, lf.positions)
+    io_write.write_lightfield(tmp_path / "dim.tif", dim)
+    status, stdout, _ = run(capsys, "refocus", tmp_path / "dim.tif", "--slope", 1, "-o", tmp_path / "a.png")
+    assert status == 0 and "note: the image reaches 0.0" in stdout and "PNG is dark (--auto-contrast" in stdout
+    assert iio.imread(tmp_path / "a.png").max() <= 13
+    status, stdout, _ = run(capsys, "refocus", tmp_path / "dim.tif", "--slope", 1, "-o", tmp_path / "b.png",
+                            "--auto-contrast")
+    assert status == 0 and "note:" not in stdout
+    stretched = iio.imread(tmp_path / "b.png")
+    assert stretched.min() == 0 and stretched.max() == 255
+    # A TIFF keeps the values: no note.
+    status, stdout, _ = run(capsys, "refocus", tmp_path / "dim.tif", "--slope", 1, "-o", tmp_path / "c.tif")
+    assert status == 0 and "note:" not in stdout
 
 
 def test_refuses_to_overwrite_then_overwrites_when_asked(capsys, plane, tmp_path):
@@ -151,6 +162,22 @@ def test_bad_input_is_a_one_line_error_with_exit_1(capsys, plane, tmp_path, argv
     assert not (tmp_path / "a.png").exists()
 
 
+def test_overwrite_never_replaces_an_input(capsys, plane, tmp_path):
+    from _cli_scenes import plane_lightfield, write_views_folder
+
+    path, _ = plane
+    before = path.read_bytes()
+    status, _, err = run(capsys, "convert", path, "-o", path, "--overwrite")
+    assert status == 1
+    assert_one_line_error(err, "plane.tif", "is an input")
+    assert path.read_bytes() == before
+    folder = write_views_folder(tmp_path / "views", plane_lightfield())
+    status, _, err = run(capsys, "refocus", folder, "--slope", 0, "-o", folder / "r.png", "--overwrite")
+    assert status == 1
+    assert_one_line_error(err, "inside the input folder")
+    assert sorted(p.name for p in folder.iterdir())[-1] == "view_04_04.png" and len(list(folder.iterdir())) == 25
+
+
 def test_a_failed_write_leaves_no_partial_file(capsys, plane, tmp_path, monkeypatch):
     path, _ = plane
     out = tmp_path / "r.tif"
@@ -171,13 +198,12 @@ def test_a_failed_write_leaves_no_partial_file(capsys, plane, tmp_path, monkeypa
 
 
 def test_detect_writes_the_cv_map_and_mask_of_the_api(capsys, plane, tmp_path):
-    needs("detect")
     path, lf = plane
     out = tmp_path / "cv.tif"
-    argv = ["--gamma", 0.3, "--n", 20, "--threshold", 0.05, "--method", "monte_carlo", "--seed", 4]
+    argv = ["--gamma", 0.3, "--n", 20, "--threshold", 0.02, "--method", "monte_carlo", "--seed", 4]
     status, stdout, _ = run(capsys, "detect", path, "--slope", 0, "-o", out, *argv)
     assert status == 0
-    expected = lfa.detect_aliasing(lf, 0.0, gamma=0.3, n_patterns=20, threshold=0.05, method="monte_carlo", seed=4)
+    expected = lfa.detect_aliasing(lf, 0.0, gamma=0.3, n_patterns=20, threshold=0.02, method="monte_carlo", seed=4)
     np.testing.assert_array_equal(tifffile.imread(out), expected.cv)
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "cv_mask.tif").astype(bool), expected.mask)
     assert f"aliased pixels: {100 * expected.mask.mean():.2f} %" in stdout
@@ -190,7 +216,6 @@ def test_detect_writes_the_cv_map_and_mask_of_the_api(capsys, plane, tmp_path):
 
 
 def test_reduce_writes_the_image_levels_and_cv_of_the_api(capsys, plane, tmp_path):
-    needs("reduce")
     path, lf = plane
     out = tmp_path / "reduced.tif"
     status, _, _ = run(capsys, "reduce", path, "--slope", 0, "--levels", 2, "-o", out)
@@ -203,12 +228,59 @@ def test_reduce_writes_the_image_levels_and_cv_of_the_api(capsys, plane, tmp_pat
     assert iio.imread(tmp_path / "reduced_levels.png").max() > 0
 
 
+def test_threshold_scale_and_solver_reach_the_api(capsys, plane, tmp_path):
+    path, lf = plane
+    out = tmp_path / "a.tif"
+    angular = ["--threshold-scale", "angular", "--threshold", 0.4]
+    assert run(capsys, "detect", path, "--slope", 0, "-o", out, *angular)[0] == 0
+    expected = lfa.detect_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular")
+    # The Cv output is the map T applies to: here the angular Cv.
+    np.testing.assert_array_equal(tifffile.imread(out), expected.angular_cv)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "a_mask.tif").astype(bool), expected.mask)
+    assert tifffile.TiffFile(out).shaped_metadata[0]["threshold_scale"] == "angular"
+    # T = 0.4 flags most of the off-focus texture on the angular scale and nothing on the paper's.
+    assert expected.mask.mean() > 0.5
+    assert not lfa.detect_aliasing(lf, 0.0, threshold=0.4).mask.any()
+
+    out = tmp_path / "r.tif"
+    assert run(capsys, "reduce", path, "--slope", 0, "-o", out, *angular, "--solver", "dct", "--levels", 2)[0] == 0
+    expected = lfa.reduce_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular", solver="dct", max_level=2)
+    np.testing.assert_array_equal(tifffile.imread(out), expected.image[..., 0])
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "r_levels.tif"), expected.level)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "r_cv.tif"), expected.detections[0].angular_cv)
+    assert tifffile.TiffFile(out).shaped_metadata[0]["solver"] == "dct"
+
+
+def test_option_choices_match_the_core():
+    from napari_lfalias import cli, detect, reduce
+
+    assert cli.METHODS == detect.METHODS
+    assert cli.THRESHOLD_SCALES == detect.THRESHOLD_SCALES
+    assert cli.SOLVERS == reduce.SOLVERS
+
+
+def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monkeypatch):
+    from napari_lfalias._cli import commands
+
+    def no_reading(*args):
+        raise AssertionError("read the input before checking the options")
+
+    monkeypatch.setattr(commands, "_open", no_reading)
+    for name in ("detect", "reduce"):
+        status, _, err = run(capsys, name, plane[0], "--slope", 0, "-o", tmp_path / "x.tif", "--gamma", 0)
+        assert status == 1
+        assert_one_line_error(err, "gamma")
+    for name in ("refocus", "detect", "reduce"):
+        status, _, err = run(capsys, name, plane[0], "--slope", "inf", "-o", tmp_path / "x.tif")
+        assert status == 1
+        assert_one_line_error(err, "slope", "finite")
+
+
 @pytest.mark.parametrize(
     "option, value, word",
     [("--gamma", 1.5, "gamma"), ("--n", 1, "n_patterns"), ("--threshold", -1, "threshold"), ("--levels", -1, "max_level")],
 )
 def test_out_of_range_detection_options_are_one_line_errors(capsys, plane, tmp_path, option, value, word):
-    needs("reduce")
     status, _, err = run(capsys, "reduce", plane[0], "--slope", 0, "-o", tmp_path / "r.png", option, value)
     assert status == 1
     assert_one_line_error(err, word)
@@ -316,7 +388,6 @@ def guv(lf_data):
 
 
 def test_convert_a_lenslet_capture_and_reuse_its_grid(capsys, guv, tmp_path):
-    needs("decoders.lenslet")
     views, grid = tmp_path / "guv.tif", tmp_path / "grid.json"
     status, out, err = run(capsys, "convert", guv["raw"], "--white", guv["white"], "--dark", guv["dark"],
                            "-o", views, "--save-grid", grid)
@@ -335,10 +406,15 @@ def test_convert_a_lenslet_capture_and_reuse_its_grid(capsys, guv, tmp_path):
     assert status == 0 and "grid:" in out
     status, out, _ = run(capsys, "info", guv["raw"], "--white", guv["white"], "--dark", guv["dark"])
     assert status == 0 and "lenslet capture" in out and "grid:" in out
+    # The vesicle spans depths on both sides of the lenslet plane (an estimate that counted the
+    # samples outside the lenses, or stepped 0.25 px per view step, found 0 .. 0 here).
+    status, out, _ = run(capsys, "info", views, "--json")
+    disparity = json.loads(out)["disparity"]
+    assert disparity["from"].startswith("estimated")
+    assert -1 < disparity["min"] < -0.2 and 0 < disparity["max"] < 0.5
 
 
 def test_a_lenslet_capture_without_white_is_a_clear_error(capsys, guv, tmp_path):
-    needs("decoders.lenslet")
     status, _, err = run(capsys, "refocus", guv["raw"], "--slope", 0, "-o", tmp_path / "r.png")
     assert status == 1
     assert_one_line_error(err, "Lightfield_GUVExperim1.tif")
@@ -346,43 +422,80 @@ def test_a_lenslet_capture_without_white_is_a_clear_error(capsys, guv, tmp_path)
 
 
 def test_demo_runs_the_bundled_capture_end_to_end(capsys, tmp_path):
-    needs("decoders.lenslet", "detect", "reduce")
     from napari_lfalias._cli.demo import DEMO_FILES, guv_files
 
-    if guv_files() is None:
-        pytest.fail("the bundled GUV sample (sample_data/guv) is missing")
-
+    assert guv_files() is not None, "the bundled GUV sample (sample_data/guv) is missing"
     out = tmp_path / "demo"
-    start = time.perf_counter()
     status, stdout, err = run(capsys, "demo", "--out", out)
-    elapsed = time.perf_counter() - start
     assert status == 0, err
-    assert "GUV" in stdout and "note:" not in stdout
-    for stage in ("decode", "refocus", "detect", "reduce", "write"):
+    assert "GUV" in stdout and "note:" not in stdout and "15 x 15 views" in stdout
+    for stage in ("decode", "sweep", "refocus", "detect", "reduce", "write"):
         assert stage in stdout
     assert sorted(p.name for p in out.iterdir()) == sorted(DEMO_FILES)
     summary = json.loads((out / "summary.json").read_text())
-    reduced = tifffile.imread(out / "reduced.tif")
-    assert reduced.shape[:2] == tuple(summary["view_size"])
+    assert summary["threshold_scale"] == "angular" and summary["threshold"] == 0.5
+    assert set(summary["seconds"]) >= {"load + decode GUV capture", "refocus", "all (wall)"}
+    # The slope shown is the most aliased one of the sweep, and it does alias.
+    candidates = summary["slope_candidates"]
+    assert summary["slope"] == candidates["slopes"][int(np.argmax(candidates["aliased_fractions"]))]
+    assert summary["aliased_fraction"] == pytest.approx(max(candidates["aliased_fractions"]))
+    assert 0 < summary["aliased_fraction"] < 1
+    refocused, reduced = tifffile.imread(out / "refocus.tif"), tifffile.imread(out / "reduced.tif")
+    levels = tifffile.imread(out / "levels.tif")
+    assert reduced.shape == refocused.shape == levels.shape == tuple(summary["view_size"])
     assert np.isfinite(reduced).all()
-    assert 0 <= summary["aliased_fraction"] <= 1
-    assert elapsed < 60
+    # Algorithm 2 changes the aliased pixels only: level-0 pixels keep the refocus exactly.
+    assert levels.max() > 0
+    np.testing.assert_array_equal(reduced[levels == 0], refocused[levels == 0])
+    assert np.abs(reduced - refocused)[levels > 0].max() > 0
+    # The previews are enlarged so that 28 x 28 px views can be seen.
+    zoom = summary["preview_zoom"]
+    assert zoom > 1 and iio.imread(out / "refocus.png").shape == (28 * zoom, 28 * zoom)
+    overview = iio.imread(out / "overview.png")
+    assert overview.shape[0] > 28 * zoom and overview.shape[1] > 6 * 28 * zoom and overview.std() > 10
     # A second run keeps the first run's files unless asked.
     before = (out / "reduced.tif").read_bytes()
     status, _, err = run(capsys, "demo", "--out", out)
     assert status == 1
     assert_one_line_error(err, "--overwrite")
     assert (out / "reduced.tif").read_bytes() == before
-    assert run(capsys, "demo", "--out", out, "--overwrite", "-q")[0] == 0
+    status, stdout, _ = run(capsys, "demo", "--out", out, "--overwrite", "-q", "--slope", "-0.25",
+                            "--threshold-scale", "cv", "--threshold", "0.011")
+    assert status == 0 and "[1/" not in stdout and " s in all" not in stdout and f"{len(DEMO_FILES)} files in" in stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["slope"] == -0.25 and "slope_candidates" not in summary
     assert temporaries(out) == []
 
 
-def test_demo_falls_back_to_the_synthetic_scene_and_says_so(capsys, tmp_path, monkeypatch):
-    needs("synthetic", "detect", "reduce")
+@pytest.mark.parametrize("missing", ["sample", "decoder"])
+def test_demo_falls_back_to_the_synthetic_scene_and_says_so(capsys, tmp_path, monkeypatch, missing):
     from napari_lfalias._cli import demo
 
-    monkeypatch.setattr(demo, "guv_files", lambda: None)
+    if missing == "sample":
+        monkeypatch.setattr(demo, "guv_files", lambda: None)
+    else:
+        monkeypatch.setattr(demo, "_lenslet_decoder_available", lambda: False)
     status, stdout, err = run(capsys, "demo", "--out", tmp_path / "demo")
     assert status == 0, err
-    assert "note: the bundled GUV sample is missing" in stdout and "brick room" in stdout
-    assert (tmp_path / "demo" / "reduced.png").exists()
+    why = "the bundled GUV sample is missing" if missing == "sample" else "the lenslet decoder is not installed"
+    assert f"note: {why}" in stdout and "brick room" in stdout
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert summary["views"] == [8, 8] and summary["aliased_fraction"] > 0
+    assert (tmp_path / "demo" / "overview.png").exists()
+
+
+def test_demo_checks_its_options_before_decoding(capsys, tmp_path, monkeypatch):
+    from napari_lfalias._cli import demo
+
+    def no_decoding(*args):
+        raise AssertionError("decoded before the options were checked")
+
+    monkeypatch.setattr(demo, "_load_scene", no_decoding)
+    status, _, err = run(capsys, "demo", "--out", tmp_path / "demo", "--gamma", 1.5)
+    assert status == 1
+    assert_one_line_error(err, "gamma")
+    assert not (tmp_path / "demo").exists()
+    (tmp_path / "file").write_text("")
+    status, _, err = run(capsys, "demo", "--out", tmp_path / "file")
+    assert status == 1
+    assert_one_line_error(err, "must be a folder")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .errors import CalibrationError, DecodeError
 
-__all__ = ["open_input", "read_grid", "lenslet_options"]
+__all__ = ["open_input", "read_grid", "lenslet_options", "check_reduce_options"]
 
 
 def read_grid(path):
@@ -87,3 +87,31 @@ def open_input(path, white=None, dark=None, grid=None):
             )
         return io_write.read_lightfield(path)
     return load(path, **lenslet_options(white, dark, grid))
+
+
+def check_reduce_options(slope, **options):
+    """Check the options of a detection or reduction before any long work starts.
+
+    The core checks its parameters where it uses them (after a light field
+    is decoded, or on a worker); this runs those same checks at once, on a
+    tiny light field, so a bad ``gamma`` fails in milliseconds and in one
+    place.
+
+    Parameters
+    ----------
+    slope : float
+    **options
+        Keyword options of :func:`napari_lfalias.reduce_aliasing`
+        (those of :func:`napari_lfalias.detect_aliasing` among them).
+
+    Raises
+    ------
+    ParameterError
+        Naming the parameter at fault.
+    """
+    import numpy as np
+
+    from .lightfield import LightField
+    from .reduce import reduce_aliasing
+
+    reduce_aliasing(LightField(np.zeros((2, 2, 4, 4, 1), np.float32)), slope, **options)

@@ -22,6 +22,8 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import logging
 import json
@@ -31,12 +33,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import io_write
+from ._inputs import check_reduce_options
 from .errors import LightFieldError, OutputExistsError, ParameterError
 
-__all__ = ["TASKS", "Job", "BatchReport", "plan_batch", "run_job", "run_batch", "local_client"]
+__all__ = ["TASKS", "REDUCE_OPTIONS", "Job", "BatchReport", "plan_batch", "run_job", "run_batch", "local_client",
+           "kernel_thread_budget"]
 
 #: What a batch can do with each input.
 TASKS = ("convert", "reduce")
+#: Keyword options of :func:`~napari_lfalias.reduce_aliasing` a reduction batch passes on.
+REDUCE_OPTIONS = ("gamma", "n_patterns", "threshold", "threshold_scale", "method", "seed", "max_level", "solver")
 MARKER_DIR = ".lfalias-batch"
 
 
@@ -47,11 +53,12 @@ class Job:
     Attributes
     ----------
     source : str
-        The input (file or folder).
+        The input (file or folder), absolute, so that workers on other
+        machines (sharing the file system) find it.
     task : str
         ``"convert"`` or ``"reduce"``.
     outputs : tuple of str
-        The files (or zarr folders) the task writes.
+        The files (or zarr folders) the task writes, absolute.
     marker : str
         The done marker, written after the outputs.
     key : str
@@ -59,6 +66,8 @@ class Job:
     options : dict
         Lenslet options (``white``, ``dark``, ``grid`` as JSON text) and,
         for reductions, the parameters of :func:`reduce_aliasing`.
+    label : str
+        The input as the user gave it (what reports and messages show).
     """
 
     source: str
@@ -67,14 +76,20 @@ class Job:
     marker: str
     key: str
     options: dict = field(hash=False)
+    label: str = ""
 
     def is_done(self):
-        """True when the marker matches this job and every output exists."""
+        """True when the marker says this job (same key) finished, and every output exists.
+
+        A marker left in state ``"running"`` (a task killed between two of its
+        outputs) never counts, even when older outputs stand under every name.
+        """
         try:
             marker = json.loads(Path(self.marker).read_text())
         except (OSError, ValueError):
             return False
-        return marker.get("key") == self.key and all(Path(p).exists() for p in self.outputs)
+        return (isinstance(marker, dict) and marker.get("key") == self.key and marker.get("state") == "done"
+                and all(Path(p).exists() for p in self.outputs))
 
 
 @dataclass
@@ -100,7 +115,8 @@ def _input_identity(path):
 
 
 def _job_key(source, task, options):
-    identity = {"source": str(Path(source).resolve()), "files": _input_identity(source),
+    frames = {name: _input_identity(options[name]) for name in ("white", "dark") if options.get(name)}
+    identity = {"source": str(Path(source).resolve()), "files": _input_identity(source), "frames": frames,
                 "task": task, "options": options}
     return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -120,7 +136,13 @@ def _reduce_options(slope, detect_kw):
         raise ParameterError("--task reduce needs --slope (the disparity in focus)")
     from ._validate import finite_float
 
-    return {"slope": finite_float("slope", slope), **detect_kw}
+    unknown = sorted(set(detect_kw) - set(REDUCE_OPTIONS))
+    if unknown:
+        raise ParameterError(f"unknown reduction option(s) {', '.join(unknown)}; accepted: {', '.join(REDUCE_OPTIONS)}")
+    slope = finite_float("slope", slope)
+    # Checked here, once, rather than once per input on the workers.
+    check_reduce_options(slope, **detect_kw)
+    return {"slope": slope, **detect_kw}
 
 
 def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lenslet=None, slope=None, **detect_kw):
@@ -142,8 +164,9 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
     slope : float, optional
         Needed by ``task="reduce"``.
     **detect_kw
-        ``gamma``, ``n_patterns``, ``threshold``, ``method``, ``seed``,
-        ``max_level`` of a reduction.
+        Options of :func:`~napari_lfalias.reduce_aliasing` (``REDUCE_OPTIONS``:
+        ``gamma``, ``n_patterns``, ``threshold``, ``threshold_scale``,
+        ``method``, ``seed``, ``max_level``, ``solver``).
 
     Returns
     -------
@@ -153,7 +176,7 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
     ------
     ParameterError
         For no inputs, a missing input, two inputs with the same output name,
-        or a missing slope.
+        an output that is an input or lies in an input folder, or a bad option.
     OutputExistsError
         If an output exists that no earlier run of a batch wrote, and
         ``overwrite`` is false.
@@ -164,24 +187,29 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
     one_of("format", fmt, ("tif", "zarr"))
     if not inputs:
         raise ParameterError("no inputs given")
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).absolute()
     if out_dir.exists() and not out_dir.is_dir():
         raise ParameterError(f"{out_dir}: --out must be a folder")
     options = {**(lenslet or {})}
     if task == "reduce":
         options.update(_reduce_options(slope, detect_kw))
+    elif slope is not None or detect_kw:
+        given = sorted(detect_kw) + (["slope"] if slope is not None else [])
+        raise ParameterError(f"{', '.join(given)}: reduction options apply to task 'reduce' (--task reduce) only")
     jobs, names = [], {}
-    for source in inputs:
-        source = Path(source)
-        if not source.exists():
-            raise ParameterError(f"{source}: no such input file or folder")
+    for given in inputs:
+        if not Path(given).exists():
+            raise ParameterError(f"{given}: no such input file or folder")
+        source = Path(given).absolute()
         stem, outputs = _output_names(source, task, out_dir, fmt)
         if stem in names:
-            raise ParameterError(f"{source} and {names[stem]} would both write {outputs[0].name}; rename one")
-        names[stem] = source
+            raise ParameterError(f"{given} and {names[stem]} would both write {outputs[0].name}; rename one")
+        names[stem] = given
         marker = out_dir / MARKER_DIR / f"{stem}.{task}.json"
         key = _job_key(source, task, options)
-        jobs.append(Job(str(source), task, tuple(str(p) for p in outputs), str(marker), key, options))
+        jobs.append(Job(str(source), task, tuple(str(p) for p in outputs), str(marker), key, options, str(given)))
+    given = [*inputs, *(options.get(name) for name in ("white", "dark"))]
+    io_write.check_not_inputs([out_dir / MARKER_DIR, *(p for job in jobs for p in job.outputs)], given)
     if not overwrite:
         for job in jobs:
             ours = Path(job.marker).exists()
@@ -211,8 +239,7 @@ def _open_job_input(job):
 def _run_reduce(job, lf):
     from .reduce import reduce_aliasing
 
-    params = {k: job.options[k] for k in ("gamma", "n_patterns", "threshold", "method", "seed", "max_level")
-              if k in job.options}
+    params = {k: job.options[k] for k in REDUCE_OPTIONS if k in job.options}
     result = reduce_aliasing(lf, job.options["slope"], **params)
     metadata = {"source": job.source, "slope": job.options["slope"], **params}
     image_out, levels_out, preview_out = job.outputs
@@ -221,38 +248,89 @@ def _run_reduce(job, lf):
     io_write.write_image(preview_out, result.image, overwrite=True)
 
 
-def run_job(job):
-    """Run one job (on a worker); return ``(source, status, detail)``.
+def kernel_thread_budget(client):
+    """Threads the compiled kernels of one task may use, per worker address.
+
+    dask already runs one task per worker thread; kernels that also use
+    every core oversubscribe the machine (2 single-threaded workers on 2
+    cores ran reductions 4x slower than serially). Each worker's tasks get
+    the cores of its host divided by the task threads of every worker on
+    that host, at least 1.
+
+    Returns
+    -------
+    dict
+        Worker address -> number of threads.
+    """
+    from distributed.comm import get_address_host
+
+    def probe(dask_worker):
+        return dask_worker.state.nthreads, os.cpu_count() or 1
+
+    info = client.run(probe)
+    threads_on_host = {}
+    for address, (nthreads, _) in info.items():
+        host = get_address_host(address)
+        threads_on_host[host] = threads_on_host.get(host, 0) + nthreads
+    return {address: max(1, cores // threads_on_host[get_address_host(address)])
+            for address, (_, cores) in info.items()}
+
+
+@contextlib.contextmanager
+def _kernel_threads(budget):
+    """Limit the compiled kernels of this task to its share of the worker's host (see above)."""
+    try:
+        from distributed import get_worker
+
+        address = get_worker().address
+    except (ImportError, ValueError):  # not on a dask worker: this process's own settings
+        address = None
+    if not budget or address is None:
+        yield
+        return
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(budget.get(address, 1), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def run_job(job, kernel_threads=None):
+    """Run one job (on a worker); return ``(label, status, detail)``.
 
     ``status`` is ``"done"``, ``"skipped"`` or ``"failed"`` (a
     :class:`LightFieldError`: bad input, not worth retrying; its one-line
     message is ``detail``). Other errors propagate, so dask retries the
-    task.
+    task. ``kernel_threads`` is a :func:`kernel_thread_budget`.
     """
     if job.is_done():
-        return job.source, "skipped", ""
+        return job.label, "skipped", ""
     start = time.perf_counter()
     _write_marker(job, "running", {"host": os.uname().nodename, "pid": os.getpid()})
     try:
-        lf = _open_job_input(job)
-        if job.task == "convert":
-            io_write.write_lightfield(job.outputs[0], lf, overwrite=True)
-        else:
-            _run_reduce(job, lf)
+        with _kernel_threads(kernel_threads):
+            lf = _open_job_input(job)
+            if job.task == "convert":
+                io_write.write_lightfield(job.outputs[0], lf, overwrite=True)
+            else:
+                _run_reduce(job, lf)
     except LightFieldError as exc:
-        return job.source, "failed", " ".join(str(exc).split())
+        return job.label, "failed", " ".join(str(exc).split())
     seconds = time.perf_counter() - start
     _write_marker(job, "done", {"seconds": seconds, "host": os.uname().nodename, "pid": os.getpid()})
-    return job.source, "done", f"{seconds:.3f} s"
+    return job.label, "done", f"{seconds:.3f} s"
 
 
 def local_client(workers=None):
     """A dask ``Client`` on a new local cluster of single-threaded worker processes (127.0.0.1)."""
     from distributed import Client, LocalCluster
 
-    workers = workers or min(4, os.cpu_count() or 1)
-    if workers < 1:
-        raise ParameterError(f"workers must be >= 1, got {workers}")
+    from ._validate import integer_at_least
+
+    workers = min(4, os.cpu_count() or 1) if workers is None else integer_at_least("workers", workers, 1)
     # Task failures are reported by run_batch; the workers' own logs would repeat them.
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                            dashboard_address=None, silence_logs=logging.CRITICAL)
@@ -265,20 +343,16 @@ def _clean(out_dir):
             io_write.remove_temporaries(folder)
 
 
-def _calibrated_grid(lenslet, first_input):
-    """Calibrate once for the whole batch; the tasks get the grid model as JSON."""
-    if not lenslet.get("white") or lenslet.get("grid"):
-        return lenslet
-    from ._inputs import open_input
+def _calibrated_grid(lenslet):
+    """Calibrate the white image once for the whole batch; the tasks get the grid model as JSON."""
+    from .decoders.lenslet import calibrate
 
-    lf = open_input(first_input, white=lenslet["white"], dark=lenslet.get("dark"))
-    grid = lf.meta.get("grid")
-    return {**lenslet, "grid": grid.to_json()} if hasattr(grid, "to_json") else lenslet
+    return {**lenslet, "grid": calibrate(lenslet["white"], lenslet.get("dark")).to_json()}
 
 
 def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, client=None, fmt="tif",
               overwrite=False, white=None, dark=None, grid=None, slope=None, retries=2, progress=None,
-              **detect_kw):
+              connect_timeout=30.0, **detect_kw):
     """Convert or reduce many inputs as dask tasks.
 
     Parameters
@@ -310,19 +384,43 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
     retries : int
         Times a task that raised an unexpected error is run again.
     progress : callable, optional
-        Called with ``(source, status, detail)`` as each task ends.
+        Called with ``(input, status, detail)`` as each task ends
+        (``status``: ``"done"``, ``"skipped"`` or ``"failed"``).
+    connect_timeout : float
+        Seconds to wait for the ``scheduler`` to answer.
     **detect_kw
-        ``gamma``, ``n_patterns``, ``threshold``, ``method``, ``seed``,
-        ``max_level`` of a reduction.
+        Options of :func:`~napari_lfalias.reduce_aliasing` (``REDUCE_OPTIONS``).
 
     Returns
     -------
     BatchReport
+        Inputs (as given) done, skipped and failed (with their one-line errors).
+
+    Raises
+    ------
+    ParameterError
+        For bad options or inputs (see :func:`plan_batch`), missing white or
+        dark frames, or a scheduler that cannot be reached; nothing has run.
+    OutputExistsError
+        See :func:`plan_batch`.
     """
     from ._inputs import lenslet_options
 
     start = time.perf_counter()
-    lenslet = {k: str(Path(v).resolve()) for k, v in (("white", white), ("dark", dark)) if v is not None}
+    if client is not None and (scheduler or workers):
+        raise ParameterError("give a client, or a scheduler address or a number of local workers, not both")
+    if scheduler and workers:
+        raise ParameterError(f"--workers sizes the local cluster; the scheduler at {scheduler} has its own workers")
+    if workers is not None:
+        from ._validate import integer_at_least
+
+        integer_at_least("workers", workers, 1)
+    lenslet = {}
+    for name, frame in (("white", white), ("dark", dark)):
+        if frame is not None:
+            if not Path(frame).is_file():
+                raise ParameterError(f"{frame}: no such {name} frame (--{name})")
+            lenslet[name] = str(Path(frame).resolve())
     if grid is not None:
         lenslet["grid"] = lenslet_options(grid=grid)["grid"].to_json()
     out_dir = Path(out_dir)
@@ -333,30 +431,41 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
     todo = []
     for job in jobs:
         if job.is_done():
-            report.skipped.append(job.source)
+            report.skipped.append(job.label)
             if progress:
-                progress(job.source, "skipped", "")
+                progress(job.label, "skipped", "")
         else:
             todo.append(job)
     if todo:
         if lenslet.get("white") and not lenslet.get("grid"):
-            shared = _calibrated_grid(lenslet, todo[0].source)
-            todo = [Job(j.source, j.task, j.outputs, j.marker, j.key, {**j.options, **shared}) for j in todo]
-        _run_jobs(todo, report, scheduler, workers, client, retries, progress)
+            shared = _calibrated_grid(lenslet)
+            todo = [dataclasses.replace(job, options={**job.options, **shared}) for job in todo]
+        _run_jobs(todo, report, scheduler, workers, client, retries, progress, connect_timeout)
     _clean(out_dir)
     report.seconds = time.perf_counter() - start
     return report
 
 
-def _run_jobs(jobs, report, scheduler, workers, client, retries, progress):
-    from distributed import Client, as_completed
+def _connect(scheduler, timeout):
+    from distributed import Client
+
+    try:
+        return Client(scheduler, timeout=timeout)
+    except (OSError, ValueError) as exc:  # refused, timed out (TimeoutError is an OSError), bad address
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ParameterError(f"--scheduler {scheduler}: cannot reach a dask scheduler there ({reason})") from exc
+
+
+def _run_jobs(jobs, report, scheduler, workers, client, retries, progress, connect_timeout):
+    from distributed import as_completed
 
     own = client is None
     if own:
-        client = Client(scheduler) if scheduler else local_client(workers)
+        client = _connect(scheduler, connect_timeout) if scheduler else local_client(workers)
     try:
-        futures = client.map(run_job, jobs, retries=retries, pure=False)
-        sources = {future.key: job.source for future, job in zip(futures, jobs)}
+        futures = client.map(run_job, jobs, kernel_threads=kernel_thread_budget(client), retries=retries,
+                             pure=False)
+        sources = {future.key: job.label for future, job in zip(futures, jobs)}
         for future in as_completed(futures):
             try:
                 source, status, detail = future.result()

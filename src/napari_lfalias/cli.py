@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 
 from .errors import LightFieldError
 
@@ -22,8 +23,10 @@ examples:
   lfalias convert capture.tif --white white.tif --dark dark.tif -o views.tif
   lfalias refocus views.tif --slope 0.5 -o refocus.png
   lfalias detect views.tif --slope 0.5 -o cv.tif          # + cv_mask.tif
-  lfalias reduce scene_folder/ --slope 1.5 --levels 3 -o reduced.png
+  lfalias detect views.tif --slope 0.5 --threshold-scale angular --threshold 0.48 -o cv.png
+  lfalias reduce scene_folder/ --slope 1.5 --levels 3 --solver dct -o reduced.png
   lfalias batch raw/*.tif --white white.tif --task convert --out views/ --workers 2
+  lfalias batch views/*.tif --task reduce --slope 0.5 --out reduced/ --scheduler tcp://10.0.0.5:8786
 
 A lenslet capture needs --white (and optionally --dark and --grid GRID.json
 from `lfalias convert --save-grid`); folders of views and files written by
@@ -34,6 +37,10 @@ from `lfalias convert --save-grid`); folders of views and files written by
 
 def _add_input(parser):
     parser.add_argument("input", help="folder of views, lenslet raw image, or a .tif/.zarr from `lfalias convert`")
+    _add_lenslet_options(parser)
+
+
+def _add_lenslet_options(parser):
     lenslet = parser.add_argument_group("lenslet capture")
     lenslet.add_argument("--white", metavar="FILE", help="white (flat-field) image of the lenslet array")
     lenslet.add_argument("--dark", metavar="FILE", help="dark frame subtracted from capture and white")
@@ -51,21 +58,51 @@ def _add_slope(parser, required=True):
     )
 
 
-def add_detection_options(parser):
-    """The options of Algorithm 1 (shared by detect, reduce, batch and demo)."""
+#: Choices of the numeric core, repeated here so ``lfalias --help`` does not import it
+#: (tests/test_cli.py checks they match ``detect.METHODS``, ``detect.THRESHOLD_SCALES``, ``reduce.SOLVERS``).
+METHODS = ("analytic", "monte_carlo")
+THRESHOLD_SCALES = ("cv", "angular")
+SOLVERS = ("auto", "lu", "multigrid", "dct")
+
+
+def add_detection_options(parser, threshold=0.02, threshold_scale="cv"):
+    """Add the options of Algorithm 1 (shared by detect, reduce, batch and demo).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+    threshold, threshold_scale
+        Defaults of ``--threshold`` and ``--threshold-scale`` (the demo
+        states its threshold on the angular scale).
+    """
     group = parser.add_argument_group("aliasing detection (Algorithm 1)")
     group.add_argument("--gamma", type=float, default=0.2, help="relaxation: fraction of views dropped at most (default 0.2)")
     group.add_argument("--n", type=int, default=100, metavar="N", help="number of random sampling patterns (default 100)")
-    group.add_argument("--threshold", type=float, default=0.02, metavar="T", help="Cv above T is aliased (default 0.02)")
+    group.add_argument("--threshold", type=float, default=threshold, metavar="T",
+                       help=f"a pixel is aliased where its Cv exceeds T (default {threshold:g})")
     group.add_argument(
-        "--method", choices=("analytic", "monte_carlo"), default="analytic",
+        "--threshold-scale", choices=THRESHOLD_SCALES, default=threshold_scale,
+        help="cv: T applies to the paper's Cv, which shrinks as views are added (T = 0.02 on 8 x 8 views "
+        "flags what T = 0.034 does on 5 x 5 and T = 0.011 on 15 x 15); angular: T applies to the angular Cv "
+        "(std / mean of the shifted views), the same for any number of views: T = 0.48 is the paper's "
+        f"0.02 on 8 x 8 (default {threshold_scale})",
+    )
+    group.add_argument(
+        "--method", choices=METHODS, default="analytic",
         help="exact expected Cv or the paper's Monte-Carlo estimate (default analytic)",
     )
     group.add_argument("--seed", type=int, default=None, help="seed of the Monte-Carlo patterns")
 
 
-def _add_levels(parser):
-    parser.add_argument("--levels", type=int, default=3, metavar="L", help="highest pyramid level of Algorithm 2 (default 3)")
+def _add_reduction_options(parser):
+    group = parser.add_argument_group("aliasing reduction (Algorithm 2)")
+    group.add_argument("--levels", type=int, default=3, metavar="L",
+                       help="highest pyramid level of Algorithm 2 (default 3)")
+    group.add_argument(
+        "--solver", choices=SOLVERS, default="auto",
+        help="Poisson solver of the gradient-domain fusion: auto (exact, keeps every pixel of level 0), "
+        "lu (sparse direct), multigrid, dct (fastest; may move pixels outside the fused region) (default auto)",
+    )
 
 
 def _add_contrast(parser):
@@ -79,8 +116,8 @@ def build_parser():
     """Return the ``lfalias`` argument parser."""
     parser = argparse.ArgumentParser(
         prog="lfalias",
-        description="Light-field decoding, refocusing, and angular-aliasing detection and reduction "
-        "(Xiao et al., CVPR 2014).",
+        description=textwrap.fill("Light-field decoding, refocusing, and angular-aliasing detection and "
+                                  "reduction (Xiao et al., CVPR 2014).", 79),
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -90,9 +127,10 @@ def build_parser():
     parser.add_argument("-q", "--quiet", action="store_true", help="print no timings or progress")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    def command(name, help_text, example):
+    def command(name, help_text, example, more=""):
         sub = commands.add_parser(
-            name, help=help_text, description=help_text, epilog=f"example:\n  {example}",
+            name, help=help_text, description=textwrap.fill(help_text + more, 79),
+            epilog=f"example:\n  {example}",
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         # Also accepted after the command; SUPPRESS keeps `lfalias -q CMD` from being reset.
@@ -112,7 +150,8 @@ def build_parser():
          "image: .png (8-bit preview) or .tif (float32)", False, False, True),
         ("detect", "detect angular aliasing (Algorithm 1): Cv map and mask",
          "lfalias detect views.tif --slope 0.5 --method monte_carlo --seed 1 -o cv.png",
-         "Cv map: .png (threshold at mid-grey) or .tif (float32); the mask goes to <name>_mask", True, False, False),
+         "Cv map (the angular Cv with --threshold-scale angular): .png (T at mid-grey) or .tif (float32); "
+         "the mask goes to <name>_mask", True, False, False),
         ("reduce", "reduce angular aliasing (Algorithm 2): multi-level gradient-domain fusion",
          "lfalias reduce views.tif --slope 0.5 --levels 3 -o reduced.png",
          "fused image: .png or .tif; level map and Cv map go to <name>_levels and <name>_cv", True, True, True),
@@ -125,7 +164,7 @@ def build_parser():
         if detection:
             add_detection_options(sub)
         if levels:
-            _add_levels(sub)
+            _add_reduction_options(sub)
         if contrast:
             _add_contrast(sub)
 
@@ -134,13 +173,18 @@ def build_parser():
     _add_input(sub)
     sub.add_argument("--json", action="store_true", help="print the facts as JSON")
 
-    sub = command("demo", "run the whole pipeline on the bundled GUV capture and time each stage",
-                  "lfalias demo --out lfalias-demo --overwrite")
+    sub = command(
+        "demo", "run the whole pipeline on the bundled GUV capture and time each stage",
+        "lfalias demo --out lfalias-demo --overwrite",
+        ". Without --slope it sweeps the capture's disparity range and shows the most aliased slope. "
+        "The threshold is stated on the angular scale (T = 0.5, about the paper's T = 0.02 on 8 x 8 views): "
+        "on the paper's scale the 15 x 15 views of this capture would need T = 0.011 to flag the same.",
+    )
     sub.add_argument("-o", "--out", default="lfalias-demo", metavar="DIR", help="output folder (default ./lfalias-demo)")
     sub.add_argument("--overwrite", action="store_true", help="replace the files of an earlier run")
     _add_slope(sub, required=False)
-    add_detection_options(sub)
-    _add_levels(sub)
+    add_detection_options(sub, threshold=0.5, threshold_scale="angular")
+    _add_reduction_options(sub)
 
     from .batch import TASKS
 
@@ -153,13 +197,10 @@ def build_parser():
     sub.add_argument("--workers", type=int, default=None, metavar="N", help="workers of the local cluster (default: CPU count, at most 4)")
     sub.add_argument("--format", choices=("tif", "zarr"), default="tif", help="light-field format of --task convert")
     sub.add_argument("--overwrite", action="store_true", help="redo and replace outputs that are not this batch's own")
-    lenslet = sub.add_argument_group("lenslet capture")
-    lenslet.add_argument("--white", metavar="FILE")
-    lenslet.add_argument("--dark", metavar="FILE")
-    lenslet.add_argument("--grid", metavar="JSON")
+    _add_lenslet_options(sub)
     _add_slope(sub, required=False)
     add_detection_options(sub)
-    _add_levels(sub)
+    _add_reduction_options(sub)
     return parser
 
 

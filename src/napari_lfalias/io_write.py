@@ -36,6 +36,7 @@ __all__ = [
     "TEMP_MARK",
     "atomic_output",
     "check_output",
+    "check_not_inputs",
     "is_temporary",
     "remove_temporaries",
     "write_tiff",
@@ -82,6 +83,29 @@ def check_output(path, overwrite=False):
     if not path.parent.is_dir():
         raise ParameterError(f"{path}: the output folder {path.parent} does not exist; create it first")
     return path
+
+
+def check_not_inputs(outputs, inputs):
+    """Raise :class:`ParameterError` if an output would replace an input or write into an input folder.
+
+    ``--overwrite`` replaces outputs, never what the user gave: a light field
+    converted onto itself, or a refocus written into its folder of views
+    (which would then hold one image too many), is refused.
+
+    Parameters
+    ----------
+    outputs : iterable of str or Path
+    inputs : iterable of str or Path or None
+        Input files and folders (``None`` entries are ignored).
+    """
+    sources = [(given, Path(given).resolve()) for given in inputs if given is not None]
+    for output in outputs:
+        target = Path(output).resolve()
+        for given, source in sources:
+            if target == source:
+                raise ParameterError(f"{output}: this is an input; write the output under another name")
+            if source in target.parents:
+                raise ParameterError(f"{output}: inside the input folder {given}; write the output elsewhere")
 
 
 def _temporary_name(path):
@@ -258,11 +282,28 @@ def to_preview(image, vmin=0.0, vmax=1.0, auto_contrast=False):
     return np.round(np.clip(scaled, 0, 1) * 255).astype(np.uint8)
 
 
-def write_png(path, image, overwrite=False, **preview):
-    """Write an 8-bit PNG preview of ``image`` atomically (see :func:`to_preview`)."""
+def write_png(path, image, overwrite=False, zoom=1, **preview):
+    """Write an 8-bit PNG preview of ``image`` atomically (see :func:`to_preview`).
+
+    Parameters
+    ----------
+    path : str or Path
+    image : ndarray, shape (Y, X[, C])
+        uint8 pixels are written as they are; anything else through
+        :func:`to_preview` with ``**preview``.
+    overwrite : bool
+    zoom : int
+        Enlarge by this whole factor, nearest neighbour (every pixel a
+        visible block), for views too small to look at.
+    """
     import imageio.v3 as iio
 
     pixels = image if np.asarray(image).dtype == np.uint8 else to_preview(image, **preview)
+    zoom = int(zoom)
+    if zoom < 1:
+        raise ParameterError(f"zoom must be a whole number >= 1, got {zoom}")
+    if zoom > 1:
+        pixels = np.repeat(np.repeat(pixels, zoom, axis=0), zoom, axis=1)
     with atomic_output(path, overwrite) as tmp:
         iio.imwrite(tmp, pixels, extension=".png")
     return Path(path)
@@ -311,7 +352,8 @@ def write_image(path, image, metadata=None, overwrite=False, **preview):
         Stored in a TIFF; ignored for PNG.
     overwrite : bool
     **preview
-        ``vmin``, ``vmax``, ``auto_contrast`` of :func:`to_preview` (PNG only).
+        ``vmin``, ``vmax``, ``auto_contrast`` of :func:`to_preview` and
+        ``zoom`` of :func:`write_png` (PNG only).
     """
     path = Path(path)
     suffix = path.suffix.lower()

@@ -130,16 +130,46 @@ def refocus_sweep(lf, slopes, what="refocus", **detect_kw):
 
 
 def _block_mean(lf, factor):
-    """Light field of luminance views shrunk by ``factor`` (block means), positions kept."""
-    views = lf.luminance().views()[..., 0]
+    """Light field of luminance views shrunk by ``factor`` (block means), positions and sample weights kept.
+
+    With sample weights (a lenslet decode), a block averages its samples by
+    weight and takes their mean weight: samples outside a microlens do not
+    pull the view towards 0.
+    """
+    lum = lf.luminance()
+    views = lum.views()[..., 0]
+    weights = lum.flat_weights()
     n, height, width = views.shape
     height, width = height // factor * factor, width // factor * factor
-    views = views[:, :height, :width].reshape(n, height // factor, factor, width // factor, factor).mean(axis=(2, 4))
-    data = views.reshape(lf.grid_shape + views.shape[1:])
-    return LightField(data, lf.positions)
+
+    def shrink(array):
+        return array[:, :height, :width].reshape(n, height // factor, factor, width // factor, factor).sum(axis=(2, 4))
+
+    if weights is None:
+        views, weights = shrink(views) / factor**2, None
+    else:
+        total = shrink(weights)
+        views = np.divide(shrink(views * weights), total, out=np.zeros_like(total), where=total > 0)
+        weights = (total / factor**2).reshape(lf.grid_shape + total.shape[1:])
+    return LightField(views.reshape(lf.grid_shape + views.shape[1:]), lf.positions, weights=weights)
 
 
-def estimate_slope_range(lf, max_slope=4.0, n_slopes=33, max_size=128, percentiles=(5, 95)):
+#: Most candidate slopes :func:`estimate_slope_range` tries by default.
+MAX_CANDIDATES = 257
+
+
+def _default_candidates(lf, max_slope):
+    """Candidates one pixel apart across the aperture: a step of ``1 / ceil(aperture span)``.
+
+    A step of 1/k px per view step moves the outermost views by at most one
+    pixel from one candidate to the next; whole slopes are always among them.
+    """
+    span = float(np.ptp(lf.flat_positions(), axis=0).max())
+    per_unit = max(1, int(np.ceil(span - 1e-9)))
+    return min(MAX_CANDIDATES, int(round(2 * max_slope * per_unit)) + 1)
+
+
+def estimate_slope_range(lf, max_slope=4.0, n_slopes=None, max_size=128, percentiles=(5, 95)):
     """Estimate the range of disparities in a scene from the photo-consistency of its views.
 
     For each candidate slope the variance across the shifted views is
@@ -154,8 +184,10 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=33, max_size=128, percentil
     max_slope : float
         Candidates span ``[-max_slope, max_slope]`` pixels per unit of view
         position (full-resolution pixels).
-    n_slopes : int
-        Number of candidates.
+    n_slopes : int, optional
+        Number of candidates. Default: one pixel of shift across the
+        aperture between neighbours (33 for 5 x 5 views, 113 for 15 x 15),
+        at most ``MAX_CANDIDATES``.
     max_size : int
         Longest side of the reduced views.
     percentiles : (float, float)
@@ -173,6 +205,8 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=33, max_size=128, percentil
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     max_slope = _validate.positive_float("max_slope", max_slope)
+    if n_slopes is None:
+        n_slopes = _default_candidates(lf, max_slope)
     n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 3)
     if lf.is_lazy:
         lf = lf.compute()
@@ -217,8 +251,16 @@ def disparity_range(lf):
     return low, high, "estimated"
 
 
-def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
+#: Options of :func:`~napari_lfalias.detect_aliasing` that configure the detector, not one detection.
+_DETECTOR_OPTIONS = ("luminance", "dark_floor", "skip_flat")
+
+
+def aliasing_by_slope(lf, slopes=None, n_slopes=9, progress=None, detector=None, **detect_kw):
     """Fraction of aliased pixels at each slope of a sweep.
+
+    One :class:`~napari_lfalias.detect.AliasingDetector` serves every
+    slope (the luminance, the tile ranges and the pyramid are made once),
+    so this needs neither dask nor one light-field copy per slope.
 
     Parameters
     ----------
@@ -228,6 +270,11 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
         widened by ``SLOPE_PAD`` on each side.
     n_slopes : int
         Number of slopes when ``slopes`` is not given.
+    progress : callable, optional
+        Called with each slope once it is done (a progress bar).
+    detector : AliasingDetector, optional
+        A detector of ``lf`` to use (and to leave warm for later detections);
+        ``luminance``, ``dark_floor`` and ``skip_flat`` are then its own.
     **detect_kw
         Passed to :func:`~napari_lfalias.detect_aliasing`.
 
@@ -235,17 +282,36 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, **detect_kw):
     -------
     slopes : ndarray, shape (S,)
     fractions : ndarray, shape (S,)
-        Fraction of pixels whose Cv exceeds the threshold at each slope.
+        Fraction of pixels whose Cv exceeds the threshold at each slope (the
+        mean of ``refocus_sweep(lf, slopes, what="mask")`` per slope).
 
     Examples
     --------
-    >>> import napari_lfalias as lfa                                    # doctest: +SKIP
-    >>> slopes, fractions = aliasing_by_slope(lf, threshold=0.02)       # doctest: +SKIP
-    >>> worst = slopes[fractions.argmax()]                              # doctest: +SKIP
+    >>> import napari_lfalias as lfa
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> lf = brick_room(n_views=4, size=64, seed=0).lightfield
+    >>> slopes, fractions = aliasing_by_slope(lf, slopes=[-4.0, 0.0, 4.0])
+    >>> fractions.shape
+    (3,)
     """
+    from .detect import AliasingDetector
+
+    if not isinstance(lf, LightField):
+        raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     if slopes is None:
         n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 1)
         low, high, _ = disparity_range(lf)
         slopes = np.linspace(low - SLOPE_PAD, high + SLOPE_PAD, n_slopes)
-    masks = refocus_sweep(lf, slopes, what="mask", **detect_kw)
-    return np.asarray(slopes, np.float64), masks.mean(axis=(1, 2)).compute()
+    slopes = _slopes_array(slopes)
+    detector_kw = {key: detect_kw.pop(key) for key in _DETECTOR_OPTIONS if key in detect_kw}
+    if detector is None:
+        detector = AliasingDetector(lf, **detector_kw)
+    elif not isinstance(detector, AliasingDetector) or detector.source is not lf or detector_kw:
+        raise ParameterError("detector must be an AliasingDetector of this light field (lf), "
+                             f"and {', '.join(_DETECTOR_OPTIONS)} are then its own")
+    fractions = np.empty(slopes.size, np.float64)
+    for i, slope in enumerate(slopes):
+        fractions[i] = detector.detect(float(slope), **detect_kw).mask.mean()
+        if progress is not None:
+            progress(float(slope))
+    return slopes, fractions

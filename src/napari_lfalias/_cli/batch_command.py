@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from .commands import reduce_options
 from .progress import Progress
 
 __all__ = ["run_batch_command"]
@@ -21,11 +22,11 @@ def run_batch_command(args, stream):
         if status == "failed":
             failures.append(f"{source}: {detail}")
 
+    reduction = reduce_options(args) if args.task == "reduce" else {}
     report = run_batch(
         args.inputs, args.out, args.task, scheduler=args.scheduler, workers=args.workers, fmt=args.format,
         overwrite=args.overwrite, white=args.white, dark=args.dark, grid=args.grid, slope=args.slope,
-        gamma=args.gamma, n_patterns=args.n, threshold=args.threshold, method=args.method, seed=args.seed,
-        max_level=args.levels, progress=progress,
+        progress=progress, **reduction,
     )
     bar.close()
     stream.write(f"{len(report.done)} done, {len(report.skipped)} skipped (already done), "

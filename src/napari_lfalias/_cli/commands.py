@@ -5,12 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import io_write
-from .._inputs import open_input
+from .._inputs import check_reduce_options, open_input
+from .._validate import finite_float
 from ..errors import ParameterError
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
 from .progress import Stages
 
-__all__ = ["run_convert", "run_refocus", "run_detect", "run_reduce", "detect_options"]
+__all__ = ["run_convert", "run_refocus", "run_detect", "run_reduce", "detect_options", "reduce_options",
+           "thresholded_cv", "given_inputs"]
+
+
+#: A PNG preview whose image stays below this (99.5th percentile) gets a note about --auto-contrast.
+DIM = 0.25
 
 
 def detect_options(args):
@@ -19,14 +25,49 @@ def detect_options(args):
         "gamma": args.gamma,
         "n_patterns": args.n,
         "threshold": args.threshold,
+        "threshold_scale": args.threshold_scale,
         "method": args.method,
         "seed": args.seed,
     }
 
 
+def reduce_options(args):
+    """Keyword options of ``reduce_aliasing`` from parsed arguments."""
+    return {**detect_options(args), "max_level": args.levels, "solver": args.solver}
+
+
+def thresholded_cv(detection):
+    """The map the threshold applies to: ``cv``, or ``angular_cv`` for ``threshold_scale="angular"``.
+
+    Written as the Cv output, so that mid-grey in its PNG preview is the threshold.
+    """
+    return detection.angular_cv if detection.threshold_scale == "angular" else detection.cv
+
+
+def given_inputs(args):
+    """The files and folders the user gave a command (never written to)."""
+    return [args.input, args.white, args.dark, args.grid]
+
+
 def _open(args, stages):
     with stages("load"):
         return open_input(args.input, white=args.white, dark=args.dark, grid=args.grid)
+
+
+def _image_range(image, args, stream):
+    """The PNG range of an image output: [0, 1], or its percentiles with --auto-contrast.
+
+    A PNG of a dim image (a fluorescence capture relative to its white
+    image, say) would be nearly black at [0, 1]: say so, and how to fix it.
+    """
+    if args.auto_contrast:
+        return preview_range(image)
+    if image_suffix(args.out) == ".png":
+        high = preview_range(image)[1]
+        if high < DIM:
+            stream.write(f"note: the image reaches {high:.3g} of [0, 1]; its PNG is dark "
+                         "(--auto-contrast stretches it; a .tif keeps the values)\n")
+    return None
 
 
 def _report(written, stages, stream):
@@ -40,7 +81,7 @@ def run_convert(args, stream):
     """Decode an input and write its views as an ImageJ TIFF or a zarr store."""
     out = Path(args.out)
     outputs = [out] + ([Path(args.save_grid)] if args.save_grid else [])
-    check_outputs(outputs, args.overwrite)
+    check_outputs(outputs, args.overwrite, given_inputs(args))
     stages = Stages(2, quiet=args.quiet, stream=stream)
     lf = _open(args, stages)
     grid = lf.meta.get("grid")
@@ -56,40 +97,57 @@ def run_convert(args, stream):
     return 0
 
 
+def _start(args, stream, tags=(), options=None):
+    """Check the outputs (``--out`` and its ``<name>_<tag>`` siblings) and the options, then open the input.
+
+    Everything that can be wrong with the command line fails here, before
+    the (possibly long) decoding.
+
+    Returns
+    -------
+    outputs : list of Path
+    stages : Stages
+        Three stages, the first ("load") done.
+    lf : LightField
+    """
+    image_suffix(args.out)
+    out = Path(args.out)
+    outputs = [out] + [sibling(out, tag) for tag in tags]
+    check_outputs(outputs, args.overwrite, given_inputs(args))
+    finite_float("slope", args.slope)
+    if options is not None:
+        check_reduce_options(args.slope, **options)
+    stages = Stages(3, quiet=args.quiet, stream=stream)
+    return outputs, stages, _open(args, stages)
+
+
 def run_refocus(args, stream):
     """Refocus on one slope and write the image."""
-    image_suffix(args.out)
-    check_outputs([args.out], args.overwrite)
-    stages = Stages(3, quiet=args.quiet, stream=stream)
-    lf = _open(args, stages)
+    outputs, stages, lf = _start(args, stream)
     from ..refocus import refocus
 
     with stages("refocus"):
         image = refocus(lf, args.slope)
     with stages("write"):
-        image_range = preview_range(image) if args.auto_contrast else None
-        written = write_outputs([(Path(args.out), "image", image)], {"slope": args.slope}, args.overwrite, image_range)
+        image_range = _image_range(image, args, stream)
+        written = write_outputs([(outputs[0], "image", image)], {"slope": args.slope}, args.overwrite, image_range)
     _report(written, stages, stream)
     return 0
 
 
 def run_detect(args, stream):
     """Detect angular aliasing at one slope; write the Cv map and the mask."""
-    image_suffix(args.out)
-    out = Path(args.out)
-    outputs = [out, sibling(out, "mask")]
-    check_outputs(outputs, args.overwrite)
-    stages = Stages(3, quiet=args.quiet, stream=stream)
-    lf = _open(args, stages)
+    options = detect_options(args)
+    outputs, stages, lf = _start(args, stream, ["mask"], options)
     from ..detect import detect_aliasing
 
-    options = detect_options(args)
     with stages("detect"):
         detection = detect_aliasing(lf, args.slope, **options)
     with stages("write"):
         metadata = {"slope": args.slope, **options}
         written = write_outputs(
-            [(outputs[0], "cv", detection.cv), (outputs[1], "mask", detection.mask)], metadata, args.overwrite
+            [(outputs[0], "cv", thresholded_cv(detection)), (outputs[1], "mask", detection.mask)], metadata,
+            args.overwrite,
         )
     stream.write(f"aliased pixels: {100.0 * float(detection.mask.mean()):.2f} %\n")
     _report(written, stages, stream)
@@ -98,20 +156,16 @@ def run_detect(args, stream):
 
 def run_reduce(args, stream):
     """Reduce angular aliasing at one slope; write the image, level map and Cv map."""
-    image_suffix(args.out)
-    out = Path(args.out)
-    outputs = [out, sibling(out, "levels"), sibling(out, "cv")]
-    check_outputs(outputs, args.overwrite)
-    stages = Stages(3, quiet=args.quiet, stream=stream)
-    lf = _open(args, stages)
+    options = reduce_options(args)
+    outputs, stages, lf = _start(args, stream, ["levels", "cv"], options)
     from ..reduce import reduce_aliasing
 
-    options = {**detect_options(args), "max_level": args.levels}
     with stages("reduce"):
         result = reduce_aliasing(lf, args.slope, **options)
     with stages("write"):
-        image_range = preview_range(result.image) if args.auto_contrast else None
-        items = [(outputs[0], "image", result.image), (outputs[1], "levels", result.level), (outputs[2], "cv", result.cv)]
+        image_range = _image_range(result.image, args, stream)
+        items = [(outputs[0], "image", result.image), (outputs[1], "levels", result.level),
+                 (outputs[2], "cv", thresholded_cv(result.detections[0]))]
         written = write_outputs(items, {"slope": args.slope, **options}, args.overwrite, image_range)
     stream.write(f"pixels above level 0: {100.0 * float((result.level > 0).mean()):.2f} %\n")
     _report(written, stages, stream)

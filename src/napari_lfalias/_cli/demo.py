@@ -1,28 +1,39 @@
 """The ``demo`` subcommand: the whole pipeline on the bundled GUV capture.
 
 Decode the lenslet capture (calibrating its grid from the white image),
-refocus, detect angular aliasing, reduce it, and write every image into one
-folder, timing each stage.
+estimate its disparity range and sweep the focus across it to find where it
+aliases most (unless ``--slope`` is given), refocus there, detect angular aliasing
+(Algorithm 1), reduce it (Algorithm 2), and write every image into one
+folder, timing each stage. Without the lenslet decoder or the bundled
+capture it runs on a small synthetic scene and says so.
+
+The threshold is stated on the angular scale by default (``T = 0.5``): the
+paper's Cv shrinks as views are added (:mod:`napari_lfalias.detect`), and
+this capture has 15 x 15 views, where the paper's ``T = 0.02`` (chosen for
+about 8 x 8 views) would flag nothing.
 """
 
 from __future__ import annotations
 
+import math
+import time
 from pathlib import Path
 
 import numpy as np
 
 from .. import io_write
-from ..errors import LightFieldError
-from .commands import detect_options
-from .outputs import check_outputs, preview_range, write_outputs
-from .progress import Stages
+from .._inputs import check_reduce_options
+from ..errors import ParameterError
+from .commands import detect_options, reduce_options, thresholded_cv
+from .outputs import check_outputs, montage, preview_range, write_outputs
+from .progress import Progress, Stages
 
-__all__ = ["run_demo", "guv_files", "DEMO_FILES"]
+__all__ = ["run_demo", "guv_files", "candidate_slopes", "DEMO_FILES"]
 
 #: Files the demo writes into its folder.
 DEMO_FILES = (
-    "lightfield.tif", "centre_view.png", "refocus.png", "refocus.tif", "cv.png", "cv.tif", "mask.png",
-    "levels.png", "reduced.png", "reduced.tif", "summary.json",
+    "lightfield.tif", "overview.png", "centre_view.png", "refocus.png", "refocus.tif", "cv.png", "cv.tif",
+    "mask.png", "levels.png", "levels.tif", "reduced.png", "reduced.tif", "summary.json",
 )
 
 GUV_FILES = {
@@ -32,6 +43,8 @@ GUV_FILES = {
 }
 #: Slopes tried when no --slope is given (the demo shows the most aliased one).
 N_CANDIDATES = 9
+#: PNG previews are enlarged (nearest neighbour) to at least this many pixels on their longest side.
+PREVIEW_SIZE = 256
 
 
 def guv_files():
@@ -72,64 +85,113 @@ def _load_scene(stages, stream):
     return scene.lightfield, "synthetic brick room, 8 x 8 views of 128 px"
 
 
+def candidate_slopes(lf):
+    """``N_CANDIDATES`` slopes across the scene's disparity range, and where the range comes from.
+
+    The range is the scene's own (:func:`~napari_lfalias.sweep.disparity_range`):
+    focused at one end of it, the rest of the scene is out of focus, which is
+    where angular aliasing shows. A scene with no depth spread (a flat one, or
+    one without texture) is swept ``SLOPE_PAD`` either side of its slope instead.
+    """
+    from ..sweep import SLOPE_PAD, disparity_range
+
+    low, high, source = disparity_range(lf)
+    if high - low < 2 * SLOPE_PAD / (N_CANDIDATES - 1):
+        low, high = low - SLOPE_PAD, high + SLOPE_PAD
+    return np.linspace(low, high, N_CANDIDATES), source
+
+
+def _choose_slope(lf, detector, options, stages, quiet, stream):
+    """The most aliased of the candidate slopes (:func:`candidate_slopes`)."""
+    from ..sweep import aliasing_by_slope
+
+    with stages("disparity range"):
+        slopes, source = candidate_slopes(lf)
+    stream.write(f"disparity range: {slopes[0]:+.3g} .. {slopes[-1]:+.3g} px per view step ({source})\n")
+    bar = Progress(len(slopes), "slope sweep", quiet=quiet)
+    with stages("aliasing sweep"):
+        slopes, fractions = aliasing_by_slope(lf, slopes, progress=lambda _: bar.update(), detector=detector,
+                                              **options)
+    bar.close()
+    stream.write("aliased pixels by slope: " + ", ".join(
+        f"{s:+.3g}: {100 * f:.1f} %" for s, f in zip(slopes, fractions)) + "\n")
+    return float(slopes[int(np.argmax(fractions))]), {"slopes": slopes.tolist(), "aliased_fractions": fractions.tolist(),
+                                                       "range_from": source}
+
+
 def run_demo(args, stream):
-    """Run ``lfalias demo``."""
+    """Run ``lfalias demo``: return 0, having written ``DEMO_FILES`` into ``args.out``."""
+    started = time.perf_counter()
     out = Path(args.out)
     if out.exists() and not out.is_dir():
-        raise LightFieldError(f"{out}: --out must be a folder")
-    out.mkdir(parents=True, exist_ok=True)
+        raise ParameterError(f"{out}: --out must be a folder")
     paths = {name: out / name for name in DEMO_FILES}
-    check_outputs(paths.values(), args.overwrite)
+    if out.is_dir():
+        check_outputs(paths.values(), args.overwrite)
 
-    stages = Stages(5 + (args.slope is None), quiet=args.quiet, stream=stream)
+    options = reduce_options(args)
+    detection_only = detect_options(args)
+    check_reduce_options(0.0 if args.slope is None else args.slope, **options)
+    stages = Stages(5 + 2 * (args.slope is None), quiet=args.quiet, stream=stream)
     lf, description = _load_scene(stages, stream)
-    options = detect_options(args)
+    from ..detect import AliasingDetector
+
+    detector = AliasingDetector(lf)  # shared by the sweep, the detection and the reduction
     slope, candidates = args.slope, None
     if slope is None:
-        from ..sweep import aliasing_by_slope
-
-        with stages("choose slope (mask sweep)"):
-            slopes, fractions = aliasing_by_slope(lf, n_slopes=N_CANDIDATES, **options)
-            slope = float(slopes[int(np.argmax(fractions))])
-            candidates = {"slopes": slopes.tolist(), "aliased_fractions": fractions.tolist()}
+        slope, candidates = _choose_slope(lf, detector, detection_only, stages, args.quiet, stream)
     stream.write(f"scene: {description}\n"
                  f"       {lf.grid_shape[0]} x {lf.grid_shape[1]} views of {lf.image_shape[0]} x {lf.image_shape[1]} px, "
-                 f"slope {slope:g}\n")
+                 f"slope {slope:.4g}, T = {args.threshold:g} on the {args.threshold_scale} scale\n")
 
-    from ..detect import detect_aliasing
     from ..reduce import reduce_aliasing
     from ..refocus import refocus
 
     with stages("refocus"):
         image = refocus(lf, slope)
     with stages(f"detect aliasing ({args.method})"):
-        detection = detect_aliasing(lf, slope, **options)
+        detection = detector.detect(slope, **detection_only)
     with stages(f"reduce aliasing (levels <= {args.levels})"):
-        result = reduce_aliasing(lf, slope, **options, max_level=args.levels)
+        result = reduce_aliasing(lf, slope, **options, detector=detector)
     with stages("write images"):
-        metadata = {"scene": description, "slope": slope, **options, "max_level": args.levels}
+        out.mkdir(parents=True, exist_ok=True)
+        metadata = {"scene": description, "slope": slope, **options}
         image_range = preview_range(image, result.image)
-        centre = lf.data[lf.grid_shape[0] // 2, lf.grid_shape[1] // 2]
+        zoom = max(1, math.ceil(PREVIEW_SIZE / max(lf.image_shape)))
+        centre = np.asarray(lf.data[lf.grid_shape[0] // 2, lf.grid_shape[1] // 2])
+        cv = thresholded_cv(detection)
+        panels = [("centre view", "image", centre), ("refocus", "image", image),
+                  (f"{'angular ' if args.threshold_scale == 'angular' else ''}Cv", "cv", cv),
+                  ("aliased", "mask", detection.mask), ("level l*", "levels", result.level),
+                  ("reduced", "image", result.image)]
         write_outputs(
-            [(paths["centre_view.png"], "image", np.asarray(centre)),
+            [(paths["centre_view.png"], "image", centre),
              (paths["refocus.png"], "image", image), (paths["refocus.tif"], "image", image),
              (paths["reduced.png"], "image", result.image), (paths["reduced.tif"], "image", result.image),
-             (paths["cv.png"], "cv", detection.cv), (paths["cv.tif"], "cv", detection.cv),
-             (paths["mask.png"], "mask", detection.mask), (paths["levels.png"], "levels", result.level)],
-            metadata, args.overwrite, image_range,
+             (paths["cv.png"], "cv", cv), (paths["cv.tif"], "cv", cv),
+             (paths["mask.png"], "mask", detection.mask),
+             (paths["levels.png"], "levels", result.level), (paths["levels.tif"], "levels", result.level)],
+            metadata, args.overwrite, image_range, zoom=zoom,
         )
+        io_write.write_png(paths["overview.png"], montage(panels, metadata, image_range, zoom), args.overwrite)
         io_write.write_lightfield(paths["lightfield.tif"], lf, overwrite=args.overwrite)
         summary = {
             **metadata,
             "views": list(lf.grid_shape), "view_size": list(lf.image_shape),
             "aliased_fraction": float(detection.mask.mean()),
             "fraction_above_level_0": float((result.level > 0).mean()),
+            "largest_change": float(np.abs(result.image - result.refocused).max()),
+            "preview_zoom": zoom,
             "seconds": dict(stages.seconds),
         }
+        # Everything since the command started: the stages, and loading the compiled kernels on first use.
+        summary["seconds"]["all (wall)"] = time.perf_counter() - started
         if candidates:
             summary["slope_candidates"] = candidates
         io_write.write_json(paths["summary.json"], summary, overwrite=args.overwrite)
     stream.write(f"aliased pixels: {100 * summary['aliased_fraction']:.2f} %, "
                  f"fused from a coarser level: {100 * summary['fraction_above_level_0']:.2f} %\n")
-    stream.write(f"total {stages.total_seconds:.2f} s; {len(DEMO_FILES)} files in {out}/\n")
+    timing = "" if args.quiet else (f"total {stages.total_seconds:.2f} s in the stages, "
+                                     f"{time.perf_counter() - started:.2f} s in all; ")
+    stream.write(f"{timing}{len(DEMO_FILES)} files in {out}/ (start with overview.png)\n")
     return 0

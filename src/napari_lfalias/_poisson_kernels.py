@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from numba.typed import List
 
 __all__ = ["Hierarchy", "build_hierarchy", "pcg", "fusion_rhs"]
 
@@ -50,6 +49,7 @@ SMOOTHING = 0.8
 COARSEST_UNKNOWNS = 96
 
 _jit = njit(cache=True, fastmath=True, error_model="numpy")
+_jit_inline = njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 
 
 # -- fusion right-hand side ------------------------------------------------------
@@ -100,26 +100,56 @@ def fusion_rhs(base, sources, labels, every_pixel=False):
 # -- multigrid levels -------------------------------------------------------------
 
 class Hierarchy:
-    """The levels of the multigrid preconditioner for one mask.
+    """The levels of the multigrid preconditioner for one mask, packed in flat arrays.
+
+    Plain arrays rather than a ``numba.typed.List``: typed lists make numba
+    compile their helpers again in every process (about 2 s), while the
+    kernels on plain arrays load from its cache.
 
     Attributes
     ----------
-    ops : numba.typed.List of tuple
-        ``(wy, wx, diag, scaled_inv, inside)`` of every level, finest first.
+    ops : ndarray, shape (5, total), float32
+        ``wy, wx, diag, scaled_inv, inside`` of every level, each level's
+        padded ``(Y + 2, X + 2)`` array flattened at ``offsets[level]``.
+    shapes : ndarray, shape (L, 2), int64
+        The padded shape of every level, finest first.
+    offsets : ndarray, shape (L + 1,), int64
+        Where each level starts in ``ops`` (and, times C, in the work buffers).
     coarse_index : ndarray, shape (m, 2), int64
         Cells ``(i, j)`` of the unknowns of the coarsest level.
     coarse_inverse : ndarray, shape (m, m), float64
         Inverse of the coarsest operator on those unknowns.
     """
 
-    def __init__(self, ops, coarse_index, coarse_inverse):
-        self.ops = ops
+    def __init__(self, levels, coarse_index, coarse_inverse):
+        self.shapes = np.array([level[0].shape for level in levels], np.int64)
+        sizes = self.shapes[:, 0] * self.shapes[:, 1]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        self.ops = np.empty((5, int(self.offsets[-1])), np.float32)
+        for level, arrays in enumerate(levels):
+            for field, array in enumerate(arrays):
+                self.ops[field, self.offsets[level]:self.offsets[level + 1]] = array.ravel()
         self.coarse_index = coarse_index
         self.coarse_inverse = coarse_inverse
 
     @property
     def n_levels(self):
-        return len(self.ops)
+        return len(self.shapes)
+
+
+@_jit_inline
+def _field(ops, shapes, offsets, level, field):
+    """Field ``field`` (0 wy, 1 wx, 2 diag, 3 scaled_inv, 4 inside) of ``level``: a (Y + 2, X + 2) view."""
+    n_rows, n_cols = shapes[level, 0], shapes[level, 1]
+    return ops[field][offsets[level]:offsets[level] + n_rows * n_cols].reshape(n_rows, n_cols)
+
+
+@_jit_inline
+def _work(buffer, n_ch, shapes, offsets, level):
+    """Level ``level`` of a flat work buffer: a (C, Y + 2, X + 2) view."""
+    n_rows, n_cols = shapes[level, 0], shapes[level, 1]
+    start = n_ch * offsets[level]
+    return buffer[start:start + n_ch * n_rows * n_cols].reshape(n_ch, n_rows, n_cols)
 
 
 @_jit
@@ -206,10 +236,10 @@ def build_hierarchy(mask, degree):
     mask = np.ascontiguousarray(mask, np.bool_)
     level = _level((mask.shape[0] + 2, mask.shape[1] + 2))
     _fine_level(mask, np.ascontiguousarray(degree, np.float32), *level[:3])
-    ops = List()
+    levels = []
     while True:
         count = _finish_level(*level[2:], SMOOTHING)
-        ops.append(level)
+        levels.append(level)
         n_rows, n_cols = level[2].shape[0] - 2, level[2].shape[1] - 2
         if count <= COARSEST_UNKNOWNS or max(n_rows, n_cols) <= 1:
             break
@@ -218,7 +248,7 @@ def build_hierarchy(mask, degree):
         level = coarse
     matrix, index = _dense_operator(*level[:3])
     inverse = np.linalg.inv(matrix) if len(index) else np.zeros((0, 0))
-    return Hierarchy(ops, index.astype(np.int64), inverse)
+    return Hierarchy(levels, index.astype(np.int64), inverse)
 
 
 # -- kernels ------------------------------------------------------------------
@@ -311,28 +341,37 @@ def _coarsest(coarse_index, coarse_inverse, rhs, u):
 
 
 @_jit
-def _vcycle(ops, us, tmps, rhss, coarse_index, coarse_inverse, sweeps):
+def _vcycle(ops, shapes, offsets, us, tmps, rhss, coarse_index, coarse_inverse, sweeps, n_ch):
     """``us[0] = M^-1 rhss[0]``: one symmetric V-cycle from a zero guess.
 
-    ``ops[level]`` is ``(wy, wx, diag, scaled_inv, inside)``; ``sweeps``
-    damped Jacobi sweeps before and after the coarse correction (an even
-    number, so the result lands in ``us``).
+    ``ops``, ``shapes`` and ``offsets`` are a :class:`Hierarchy`'s; ``us``,
+    ``tmps`` and ``rhss`` flat work buffers laid out like it (times ``n_ch``).
+    ``sweeps`` damped Jacobi sweeps before and after the coarse correction
+    (an even number, so the result lands in ``us``).
     """
-    n_levels = len(ops)
+    n_levels = shapes.shape[0]
     for level in range(n_levels - 1):
-        wy, wx, diag, scaled_inv, inside = ops[level]
-        u, tmp, rhs = us[level], tmps[level], rhss[level]
+        wy, wx, diag = (_field(ops, shapes, offsets, level, 0), _field(ops, shapes, offsets, level, 1),
+                        _field(ops, shapes, offsets, level, 2))
+        scaled_inv = _field(ops, shapes, offsets, level, 3)
+        u, tmp = _work(us, n_ch, shapes, offsets, level), _work(tmps, n_ch, shapes, offsets, level)
+        rhs = _work(rhss, n_ch, shapes, offsets, level)
         _scale(scaled_inv, rhs, tmp)
         _jacobi(wy, wx, diag, scaled_inv, tmp, rhs, u)
         for _ in range(1, sweeps // 2):
             _jacobi(wy, wx, diag, scaled_inv, u, rhs, tmp)
             _jacobi(wy, wx, diag, scaled_inv, tmp, rhs, u)
-        _restrict_residual(wy, wx, diag, u, rhs, rhss[level + 1])
-    _coarsest(coarse_index, coarse_inverse, rhss[n_levels - 1], us[n_levels - 1])
+        _restrict_residual(wy, wx, diag, u, rhs, _work(rhss, n_ch, shapes, offsets, level + 1))
+    last = n_levels - 1
+    _coarsest(coarse_index, coarse_inverse, _work(rhss, n_ch, shapes, offsets, last),
+              _work(us, n_ch, shapes, offsets, last))
     for level in range(n_levels - 2, -1, -1):
-        wy, wx, diag, scaled_inv, inside = ops[level]
-        u, tmp, rhs = us[level], tmps[level], rhss[level]
-        _prolong_add(inside, us[level + 1], u)
+        wy, wx, diag = (_field(ops, shapes, offsets, level, 0), _field(ops, shapes, offsets, level, 1),
+                        _field(ops, shapes, offsets, level, 2))
+        scaled_inv, inside = _field(ops, shapes, offsets, level, 3), _field(ops, shapes, offsets, level, 4)
+        u, tmp = _work(us, n_ch, shapes, offsets, level), _work(tmps, n_ch, shapes, offsets, level)
+        rhs = _work(rhss, n_ch, shapes, offsets, level)
+        _prolong_add(inside, _work(us, n_ch, shapes, offsets, level + 1), u)
         for _ in range(sweeps // 2):
             _jacobi(wy, wx, diag, scaled_inv, u, rhs, tmp)
             _jacobi(wy, wx, diag, scaled_inv, tmp, rhs, u)
@@ -378,15 +417,15 @@ def _direction(z, beta, p):
 
 
 @_jit
-def _pcg(ops, us, tmps, rhss, coarse_index, coarse_inverse, tol, max_iter, sweeps, x):
-    """Preconditioned CG on ``A x = rhss[0]`` from ``x = 0``; returns the number of iterations.
+def _pcg(ops, shapes, offsets, us, tmps, rhss, coarse_index, coarse_inverse, tol, max_iter, sweeps, x):
+    """Preconditioned CG on ``A x = rhs`` (level 0 of ``rhss``) from ``x = 0``; returns the iterations.
 
-    ``rhss[0]`` holds the residual as the iterations go (it is the
-    V-cycle's right-hand side); ``us[0]`` the preconditioned residual.
+    Level 0 of ``rhss`` holds the residual as the iterations go (it is the
+    V-cycle's right-hand side); level 0 of ``us`` the preconditioned residual.
     """
     n_ch = x.shape[0]
-    wy, wx, diag = ops[0][0], ops[0][1], ops[0][2]
-    r, z = rhss[0], us[0]
+    wy, wx, diag = _field(ops, shapes, offsets, 0, 0), _field(ops, shapes, offsets, 0, 1), _field(ops, shapes, offsets, 0, 2)
+    r, z = _work(rhss, n_ch, shapes, offsets, 0), _work(us, n_ch, shapes, offsets, 0)
     q = np.zeros_like(x)
     rr, rz, pq = np.zeros(n_ch), np.zeros(n_ch), np.zeros(n_ch)
     alpha, beta = np.zeros(n_ch), np.zeros(n_ch)
@@ -394,7 +433,7 @@ def _pcg(ops, us, tmps, rhss, coarse_index, coarse_inverse, tol, max_iter, sweep
     goal = (tol * tol) * rr
     if np.all(rr <= 0.0):
         return 0
-    _vcycle(ops, us, tmps, rhss, coarse_index, coarse_inverse, sweeps)
+    _vcycle(ops, shapes, offsets, us, tmps, rhss, coarse_index, coarse_inverse, sweeps, n_ch)
     p = z.copy()
     _dot(r, z, rz)
     for iteration in range(1, max_iter + 1):
@@ -404,7 +443,7 @@ def _pcg(ops, us, tmps, rhss, coarse_index, coarse_inverse, tol, max_iter, sweep
         _step(x, r, p, q, alpha, rr)
         if np.all(rr <= goal):
             return iteration
-        _vcycle(ops, us, tmps, rhss, coarse_index, coarse_inverse, sweeps)
+        _vcycle(ops, shapes, offsets, us, tmps, rhss, coarse_index, coarse_inverse, sweeps, n_ch)
         for c in range(n_ch):
             beta[c] = rz[c]
         _dot(r, z, rz)
@@ -421,12 +460,11 @@ def pcg(hierarchy, rhs, tol=1e-6, max_iter=200, sweeps=2):
     the residual of every channel has fallen by ``tol`` (relative to ``rhs``).
     """
     n_ch = rhs.shape[0]
-    shapes = [(n_ch,) + level[2].shape for level in hierarchy.ops]
-    us = List([np.zeros(s, np.float32) for s in shapes])
-    tmps = List([np.zeros(s, np.float32) for s in shapes])
-    rhss = List([np.zeros(s, np.float32) for s in shapes])
-    rhss[0][:, 1:-1, 1:-1] = rhs
-    x = np.zeros(shapes[0], np.float32)
-    iterations = _pcg(hierarchy.ops, us, tmps, rhss, hierarchy.coarse_index, hierarchy.coarse_inverse,
-                      float(tol), int(max_iter), 2 * max(1, int(sweeps) // 2), x)
+    size = n_ch * int(hierarchy.offsets[-1])
+    us, tmps, rhss = (np.zeros(size, np.float32) for _ in range(3))
+    fine = tuple(int(n) for n in hierarchy.shapes[0])
+    rhss[:n_ch * fine[0] * fine[1]].reshape((n_ch,) + fine)[:, 1:-1, 1:-1] = rhs
+    x = np.zeros((n_ch,) + fine, np.float32)
+    iterations = _pcg(hierarchy.ops, hierarchy.shapes, hierarchy.offsets, us, tmps, rhss, hierarchy.coarse_index,
+                      hierarchy.coarse_inverse, float(tol), int(max_iter), 2 * max(1, int(sweeps) // 2), x)
     return x[:, 1:-1, 1:-1], iterations

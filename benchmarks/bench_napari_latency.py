@@ -258,11 +258,12 @@ def _report(result, args):
         "",
     ]
     text = "\n".join(lines)
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=RESULTS.parent, suffix=".tmp")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
     with os.fdopen(fd, "w") as handle:
         handle.write(text)
-    os.replace(tmp, RESULTS)
+    os.replace(tmp, out)
     print(text)
 
 
@@ -276,6 +277,7 @@ def main(argv=None):
                         help="the synthetic brick room (default) or the real HCI antinous views")
     parser.add_argument("--pause", type=float, default=0.2,
                         help="idle event-loop time between two focus changes, s (default 0.2)")
+    parser.add_argument("--out", type=Path, default=RESULTS, help=f"the report (default {RESULTS.name} in results/)")
     args = parser.parse_args(argv)
     result = run(args.views, args.size, args.repeats, args.api_repeats, args.pause, args.scene)
     _report(result, args)

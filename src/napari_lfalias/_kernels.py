@@ -197,7 +197,7 @@ def shifted_stack(views, n_ch, weights, has_weight, base, frac, out_values, out_
 
 
 @njit(cache=True, inline="always")
-def _accumulate_row(values, weights, normalise, n_ch, shift, s1, s2, wsum, count):
+def _accumulate_row(values, weights, normalise, n_ch, shift, s1, s2, wsum, count, sample_w, fresh):
     """Fold one view's row into weighted sums of deviations from a per-pixel shift.
 
     ``values (X*C)`` are the samples, or their tap sums when ``normalise``
@@ -206,6 +206,7 @@ def _accumulate_row(values, weights, normalise, n_ch, shift, s1, s2, wsum, count
     the spread of the data whatever its offset, and the float64 sums of
     their squares lose nothing the float32 samples hold (``E[x^2] - E[x]^2``
     of the raw values would). Branch-free, so the loop vectorises.
+    ``sample_w`` (float64) and ``fresh`` (bool), ``(X*C)``, are scratch for colour rows.
     """
     if n_ch == 1:  # luminance, what detection runs on: one flat loop LLVM can vectorise
         for x in range(wsum.shape[0]):
@@ -218,20 +219,23 @@ def _accumulate_row(values, weights, normalise, n_ch, shift, s1, s2, wsum, count
             wsum[x] += w
             count[x] += w > 0.0
         return
-    for x in range(wsum.shape[0]):
-        w = weights[x]
-        seen = w > 0.0
-        inv = 1.0 / w if (normalise and seen) else (1.0 if not normalise else 0.0)
-        fresh = wsum[x] == 0.0
+    # colour: a weight (and a "first sample" flag) per sample, so the main loop runs flat over X*C
+    n_cols = wsum.shape[0]
+    for x in range(n_cols):
         for ch in range(n_ch):
-            k = x * n_ch + ch
-            v = values[k] * inv
-            shift[k] = v if fresh else shift[k]
-            d = v - shift[k]
-            s1[k] += w * d
-            s2[k] += w * d * d
+            sample_w[x * n_ch + ch] = weights[x]
+            fresh[x * n_ch + ch] = wsum[x] == 0.0
+    for k in range(n_cols * n_ch):
+        w = sample_w[k]
+        v = values[k] / max(w, 1e-30) if normalise else values[k]
+        shift[k] = v if fresh[k] else shift[k]
+        d = v - shift[k]
+        s1[k] += w * d
+        s2[k] += w * d * d
+    for x in range(n_cols):
+        w = weights[x]
         wsum[x] += w
-        count[x] += 1 if seen else 0
+        count[x] += w > 0.0
 
 
 @njit(cache=True, inline="always")
@@ -263,10 +267,12 @@ def moments(views, n_ch, weights, has_weight, base, frac, out_mean, out_var, out
         s2 = np.zeros(n_cols * n_ch)
         wsum = np.zeros(n_cols)
         count = np.zeros(n_cols, np.int32)
+        sample_w = np.empty(n_cols * n_ch)
+        fresh = np.empty(n_cols * n_ch, np.bool_)
         for i in range(n):
             _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
                         base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den)
-            _accumulate_row(num, den, True, n_ch, shift, s1, s2, wsum, count)
+            _accumulate_row(num, den, True, n_ch, shift, s1, s2, wsum, count, sample_w, fresh)
         _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean, out_var, out_wsum, out_count)
 
 
@@ -284,6 +290,8 @@ def moments_tiles(views, n_ch, weights, has_weight, base, frac, tiles, out_mean,
         s2 = np.empty(width * n_ch)
         wsum = np.empty(width)
         count = np.empty(width, np.int32)
+        sample_w = np.empty(width * n_ch)
+        fresh = np.empty(width * n_ch, np.bool_)
         for y in range(y0, y1):
             s1[:] = 0.0
             s2[:] = 0.0
@@ -292,7 +300,8 @@ def moments_tiles(views, n_ch, weights, has_weight, base, frac, tiles, out_mean,
             for i in range(n):
                 _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
                             base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den, x0, x1)
-                _accumulate_row(num[x0 * n_ch:x1 * n_ch], den[x0:x1], True, n_ch, shift, s1, s2, wsum, count)
+                _accumulate_row(num[x0 * n_ch:x1 * n_ch], den[x0:x1], True, n_ch, shift, s1, s2, wsum, count,
+                                sample_w, fresh)
             _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean[:, x0:x1], out_var[:, x0:x1],
                            out_wsum[:, x0:x1], out_count[:, x0:x1])
 
@@ -307,8 +316,10 @@ def stack_moments(values, n_ch, weights, out_mean, out_var, out_wsum, out_count)
         s2 = np.zeros(n_cols * n_ch)
         wsum = np.zeros(n_cols)
         count = np.zeros(n_cols, np.int32)
+        sample_w = np.empty(n_cols * n_ch)
+        fresh = np.empty(n_cols * n_ch, np.bool_)
         for i in range(n):
-            _accumulate_row(values[i, y], weights[i, y], False, n_ch, shift, s1, s2, wsum, count)
+            _accumulate_row(values[i, y], weights[i, y], False, n_ch, shift, s1, s2, wsum, count, sample_w, fresh)
         _store_moments(y, n_ch, shift, s1, s2, wsum, count, out_mean, out_var, out_wsum, out_count)
 
 

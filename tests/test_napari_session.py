@@ -111,6 +111,21 @@ def test_reduce_is_the_api_reduction_with_the_sessions_detector(room):
     assert reduction.level.max() > 0
 
 
+def test_a_stopped_reduction_stops_between_stages_and_frees_the_detector(room, monkeypatch):
+    from napari_lfalias import reduce as reduce_module
+
+    fused = []
+    monkeypatch.setattr(reduce_module, "fuse_gradients", lambda *a, **k: fused.append(1))
+    session = AliasingSession(room)
+    job = session.reduce(4.0, DetectionParams(threshold=0.01, max_level=3))
+    steps = []
+    while len([s for s in steps if isinstance(s, tuple) and s[1] == 6]) < 2:
+        steps.append(next(job))  # the core's stages: (done, 6) for max_level 3
+    job.close()  # what a worker's quit() does at a yield
+    assert fused == [] and not session._lock.locked()
+    assert [s for s in steps if isinstance(s, tuple) and s[1] == 6] == [(1, 6), (2, 6)]
+
+
 def test_a_job_waiting_for_the_detector_yields_and_refocuses_meanwhile(room):
     session = AliasingSession(room)
     _run(session.detect(0.0, DetectionParams()))  # the detector exists

@@ -92,6 +92,32 @@ def test_coarser_levels_are_only_computed_where_pixels_are_still_aliased(room, m
     assert [level for level, _ in regions] == [0]
 
 
+def test_the_steps_report_progress_and_give_the_same_result(room):
+    from napari_lfalias.reduce import iter_reduce_aliasing
+
+    steps = iter_reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=3)
+    progress = []
+    while True:
+        try:
+            progress.append(next(steps))
+        except StopIteration as done:
+            result = done.value
+            break
+    assert progress == [(k, 6) for k in range(1, 7)]
+    np.testing.assert_array_equal(result.image, lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005).image)
+
+
+def test_closing_the_steps_stops_the_work(room, monkeypatch):
+    from napari_lfalias import reduce as reduce_module
+
+    calls = []
+    monkeypatch.setattr(reduce_module, "fuse_gradients", lambda *a, **k: calls.append("fuse"))
+    steps = reduce_module.iter_reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    assert next(steps) == (1, 6)
+    steps.close()
+    assert calls == []
+
+
 def test_a_detector_can_be_reused(room, monkeypatch):
     detector = AliasingDetector(room.lightfield)
     first = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, detector=detector)

@@ -263,16 +263,19 @@ class AliasingSession:
     def reduce(self, slope, params):
         """Reduce aliasing at ``slope`` (Algorithm 2) with the session's detector.
 
-        Returns a job that yields ``(done, total)`` and returns the Reduction.
+        Returns a job that yields ``(done, total)`` after each stage of the
+        reduction (:func:`~napari_lfalias.reduce.iter_reduce_aliasing`) and
+        returns the Reduction; stopping the job stops the reduction at the
+        next stage.
         """
-        from .. import reduce_aliasing
+        from ..reduce import iter_reduce_aliasing
 
         slope = float(slope)
-
-        def work(detector):
-            return reduce_aliasing(
-                detector.source, slope, max_level=params.max_level, detector=detector,
-                **params.detect_kwargs(),
-            )
-
-        return self._job(work)
+        detector = yield from self._ready((0, 2))
+        yield from self._wait((0, 2))
+        try:
+            # the core's own steps: progress per stage, and a quit() takes effect between two of them
+            return (yield from iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
+                                                    detector=detector, **params.detect_kwargs()))
+        finally:
+            self._lock.release()

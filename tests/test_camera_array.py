@@ -381,7 +381,7 @@ def test_lazy_views_compute_on_a_local_cluster(tmp_path):
     folder = _write_views(tmp_path / "v", views, lambda u, v, n: f"v_{u}_{v}.png")
     lazy = load_camera_array(folder, lazy=True)
     with distributed.LocalCluster(
-        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0"
     ) as cluster, distributed.Client(cluster):
         mean = lazy.data.mean(axis=(0, 1)).compute()  # the reader travels to another process
     np.testing.assert_allclose(mean, _expected(views).mean(axis=(0, 1)), rtol=1e-6)

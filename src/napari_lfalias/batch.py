@@ -331,9 +331,10 @@ def local_client(workers=None):
     from ._validate import integer_at_least
 
     workers = min(4, os.cpu_count() or 1) if workers is None else integer_at_least("workers", workers, 1)
-    # Task failures are reported by run_batch; the workers' own logs would repeat them.
+    # Task failures are reported by run_batch; the workers' own logs would repeat them. The
+    # scheduler's HTTP endpoint takes any free port: 8787 may be taken by another cluster.
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.CRITICAL)
+                           dashboard_address=":0", silence_logs=logging.CRITICAL)
     return Client(cluster)
 
 

@@ -196,9 +196,26 @@ def test_gamma_change_with_the_exact_method_reuses_the_moments(scene_viewer, qtb
     np.testing.assert_array_equal(cv.data, expected.cv)
 
 
-def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewer, qtbot):
+def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewer, qtbot, monkeypatch):
+    """The reduction's fusion waits for three ticks of a GUI-thread timer while the job is busy.
+
+    It can only finish if the GUI thread processes events while the worker
+    reduces, however fast the reduction itself is.
+    """
+    import threading
+
     from qtpy.QtCore import QTimer
 
+    from napari_lfalias import reduce as reduce_module
+
+    gate = threading.Event()
+    fuse = reduce_module.fuse_gradients
+
+    def gated_fuse(*args, **kwargs):
+        assert gate.wait(30), "the GUI thread processed no events while the reduction worked"
+        return fuse(*args, **kwargs)
+
+    monkeypatch.setattr(reduce_module, "fuse_gradients", gated_fuse)
     viewer = make_napari_viewer()
     lf = _scene(n_views=5, size=128)
     _add(viewer, lf)
@@ -207,15 +224,21 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     _idle(qtbot, widget)
 
     ticks_while_busy = []
+
+    def tick():
+        ticks_while_busy.append(widget.jobs.busy("reduce"))
+        if sum(ticks_while_busy) >= 3:
+            gate.set()
+
     timer = QTimer()
     timer.setInterval(5)
-    timer.timeout.connect(lambda: ticks_while_busy.append(widget.jobs.busy("reduce")))
+    timer.timeout.connect(tick)
     timer.start()
     widget.reduce()
     assert widget.jobs.busy("reduce")
     fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
     timer.stop()
-    assert sum(ticks_while_busy) >= 2  # the GUI thread ticked while the worker reduced
+    assert gate.is_set() and sum(ticks_while_busy) >= 3  # the GUI thread ticked while the worker reduced
 
     params = widget.params()
     expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())

@@ -14,10 +14,14 @@ at the start and at the end of a run.
 
 Examples
 --------
->>> from napari_lfalias.batch import run_batch                  # doctest: +SKIP
->>> report = run_batch(["a.tif", "b.tif"], "views/", task="convert",
-...                    white="white.tif", workers=2)             # doctest: +SKIP
->>> report.done, report.skipped                                 # doctest: +SKIP
+Convert two lenslet captures on a local cluster of two workers (it needs
+the captures and their white image; ``tests/test_batch.py`` runs this on
+real files)::
+
+    from napari_lfalias.batch import run_batch
+
+    report = run_batch(["a.tif", "b.tif"], "views/", task="convert", white="white.tif", workers=2)
+    print(report.done, report.skipped)
 """
 
 from __future__ import annotations

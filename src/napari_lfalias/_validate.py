@@ -36,6 +36,14 @@ def positive_float(name, value):
     return value
 
 
+def non_negative_float(name, value):
+    """Return ``value`` as a float, checking ``value >= 0``."""
+    value = finite_float(name, value)
+    if value < 0:
+        raise ParameterError(f"{name} must be >= 0, got {value!r}")
+    return value
+
+
 def integer_at_least(name, value, minimum):
     """Return ``value`` as an int, checking it is a whole number ``>= minimum``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):

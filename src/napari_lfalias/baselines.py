@@ -241,9 +241,7 @@ def prefilter_refocus(lf, slope, disparity_range=None, *, width=None):
     if width is None:
         width = prefilter_width(lf, slope, disparity_range)
     else:
-        width = _validate.finite_float("width", width)
-        if width < 0:
-            raise ParameterError(f"width must be >= 0, got {width!r}")
+        width = _validate.non_negative_float("width", width)
     views = lf.views()
     weights = lf.flat_weights()
     n, f = _box_taps(width)

@@ -93,7 +93,7 @@ from scipy.special import gammaln
 from . import _validate
 from .errors import ParameterError
 from .lightfield import REC709, LightField
-from .pyramid import level_shape, lightfield_pyramid
+from .pyramid import lightfield_pyramid
 from .refocus import _inputs, _run, shift_views
 
 __all__ = [
@@ -355,9 +355,7 @@ class AliasingDetector:
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
         _validate.one_of("luminance", luminance, LUMINANCE_MODES)
-        self.dark_floor = _validate.finite_float("dark_floor", dark_floor)
-        if self.dark_floor < 0:
-            raise ParameterError(f"dark_floor must be >= 0, got {dark_floor!r}")
+        self.dark_floor = _validate.non_negative_float("dark_floor", dark_floor)
         if not isinstance(skip_flat, (bool, np.bool_)):
             raise ParameterError(f"skip_flat must be True or False, got {skip_flat!r}")
         self.skip_flat = bool(skip_flat)

@@ -128,13 +128,6 @@ def _mask(name, mask, shape):
     return mask
 
 
-def _screen(screen):
-    screen = _validate.finite_float("screen", screen)
-    if screen < 0:
-        raise ParameterError(f"screen must be >= 0, got {screen!r}")
-    return screen
-
-
 def _tolerance(tol):
     return _validate.in_open_interval("tol", tol, 0.0, 1.0)
 
@@ -273,7 +266,7 @@ def solve_neumann(div, *, screen=0.0, reference=None, mean=None):
     True
     """
     div, flat = _image("div", div)
-    screen = _screen(screen)
+    screen = _validate.non_negative_float("screen", screen)
     if reference is not None:
         reference, _ = _image("reference", reference)
         _same_shape("reference", reference, div.shape)
@@ -341,7 +334,8 @@ def solve_dirichlet(image, mask, div, *, method="auto", tol=1e-5, screen=0.0):
     mask = _mask("mask", mask, image.shape[:2])
     div, _ = _image("div", div)
     _same_shape("div", div, image.shape)
-    method, tol, screen = _check_method(method), _tolerance(tol), _screen(screen)
+    method, tol = _check_method(method), _tolerance(tol)
+    screen = _validate.non_negative_float("screen", screen)
     # correction form: f = image + h, h = 0 off the mask, A h = laplacian(image) - div on it
 
     def rhs(box):
@@ -454,7 +448,8 @@ def fuse_gradients(base, sources, labels, *, method="auto", tol=1e-5, screen=0.0
         _same_shape(f"sources[{k}]", source, base.shape)
         checked.append(source)
     labels = _labels(labels, base.shape[:2], len(checked))
-    method, tol, screen = _check_method(method), _tolerance(tol), _screen(screen)
+    method, tol = _check_method(method), _tolerance(tol)
+    screen = _validate.non_negative_float("screen", screen)
 
     def rhs(box):
         # the divergence of grad(base) - guidance (on the labelled pixels, unless the DCT solves them all)

@@ -84,10 +84,7 @@ class Reduction:
 def _check(max_level, solver, screen):
     max_level = _validate.integer_at_least("max_level", max_level, 0)
     _validate.one_of("solver", solver, SOLVERS)
-    screen = _validate.finite_float("screen", screen)
-    if screen < 0:
-        raise ParameterError(f"screen must be >= 0, got {screen!r}")
-    return max_level, screen
+    return max_level, _validate.non_negative_float("screen", screen)
 
 
 def _to_level(mask, level):

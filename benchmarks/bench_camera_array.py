@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import tempfile
-import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from _harness import median_iqr, timings
 
 RESULTS = Path(__file__).resolve().parent / "results" / "camera_array.md"
 COMMAND = ".venv/bin/python benchmarks/bench_camera_array.py"
@@ -51,15 +51,6 @@ def _read_all(reader, paths, threads):
         return list(pool.map(reader, paths))
 
 
-def _median_seconds(run, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, default=HCI_SCENE)
@@ -79,7 +70,7 @@ def main():
         "lfa.load(folder, lazy=True): open (headers only)": lambda: lfa.load(args.folder, lazy=True),
         "lfa.load(folder, lazy=True).data.compute()": lambda: lfa.load(args.folder, lazy=True).data.compute(),
     }
-    results = {name: _median_seconds(run, args.repeats) for name, run in cases.items()}
+    results = {name: median_iqr(timings(run, args.repeats, warmup=0))[0] for name, run in cases.items()}
     baseline = next(iter(results.values()))
 
     lines = [

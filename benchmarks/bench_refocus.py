@@ -31,7 +31,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 import tracemalloc
 from pathlib import Path
 
@@ -42,16 +41,9 @@ from scipy import ndimage
 import napari_lfalias as lfa
 from napari_lfalias import LightField
 
+from _harness import median_iqr, timings
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def median_time(func, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def peak_bytes(func):
@@ -152,7 +144,7 @@ def main(argv=None):
     rows = []  # (name, seconds, peak bytes, max error or None)
 
     def measure(name, func, repeats=args.repeats, scale=1.0, err=None):
-        seconds = median_time(func, repeats) * scale
+        seconds = median_iqr(timings(func, repeats, warmup=0))[0] * scale
         rows.append((name, seconds, peak_bytes(func), err))
         print(f"{name:58s} {seconds * 1e3:9.1f} ms", flush=True)
 

@@ -423,13 +423,9 @@ class AliasingDetector:
             self._slope, self._moments, self._stacks = slope, {}, {}
 
     # -- which tiles need work -----------------------------------------------------
-    def _tile_grid(self, level):
-        low = self._tile_ranges(level)[0]
-        return low.shape
-
     def _candidate_tiles(self, level, region):
         """Tiles that hold at least one pixel of ``region`` (all of them without one)."""
-        shape = self._tile_grid(level)
+        shape = self._tile_ranges(level)[0].shape
         if region is None:
             return np.ones(shape, bool)
         height, width = region.shape

@@ -149,7 +149,7 @@ def _kill_a_running_worker(client, markers, killed, deadline):
     pids = set(client.run(os.getpid).values())
     while time.monotonic() < deadline and not killed:
         for marker in markers.glob("*.json"):
-            if io_write.TEMP_MARK in marker.name:
+            if io_write.is_temporary(marker):
                 continue  # a marker being written atomically, not a marker
             try:
                 record = json.loads(marker.read_text())

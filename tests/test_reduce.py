@@ -73,6 +73,19 @@ def test_reduction_is_closer_to_the_dense_aperture_where_it_acts(room):
     assert psnr(result.image, reference, acted) >= psnr(result.refocused, reference, acted) + 3.0
 
 
+def test_keeping_the_in_focus_layer_keeps_the_wall_sharp_around_the_defocused_cube(room):
+    """Focused on the wall, the defocused cube's halo hides part of it: the wall must stay nearer the reference."""
+    slope = -4.0
+    reference = room.reference(slope)
+    paper = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005)
+    kept = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005, keep_in_focus=True)
+    np.testing.assert_array_equal(kept.level, paper.level)
+    halo = (kept.level > 0) & (room.disparity == slope)  # in-focus wall pixels the reduction acted on
+    assert halo.mean() > 0.01
+    assert psnr(kept.image, reference, halo) >= psnr(paper.image, reference, halo) + 2.0
+    np.testing.assert_array_equal(kept.image[kept.level == 0], kept.refocused[kept.level == 0])
+
+
 def test_coarser_levels_are_only_computed_where_pixels_are_still_aliased(room, monkeypatch):
     regions = []
     detect = AliasingDetector.detect
@@ -135,7 +148,7 @@ def test_a_detector_can_be_reused(room, monkeypatch):
     [
         (dict(max_level=-1), "max_level"), (dict(max_level=1.5), "max_level"), (dict(solver="cg"), "solver"),
         (dict(gamma=2.0), "gamma"), (dict(n_patterns=0), "n_patterns"), (dict(threshold=0.0), "threshold"),
-        (dict(method="exact"), "method"),
+        (dict(method="exact"), "method"), (dict(keep_in_focus="yes"), "keep_in_focus"),
     ],
 )
 def test_bad_parameters_are_parameter_errors(room, kwargs, word):

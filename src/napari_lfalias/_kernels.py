@@ -18,7 +18,7 @@ from numba import njit, prange
 
 __all__ = [
     "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
-    "pyr_down", "luminance_ranges", "pattern_cv", "bilinear_point",
+    "pyr_down", "luminance_ranges", "pattern_cv", "bilinear_point", "in_focus_consensus",
 ]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
@@ -579,3 +579,79 @@ def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_co
                 if w[i, q] > 0.0:
                     seen += 1
             out_count[pixels[start + q]] = seen
+
+
+@njit(cache=True, inline="always")
+def _sort_by(keys, order, m):
+    """Insertion sort of ``order[:m] = 0 .. m-1`` by ``keys``: no allocation, quick for the few dozen views."""
+    for a in range(m):
+        order[a] = a
+    for a in range(1, m):
+        item = order[a]
+        key = keys[item]
+        b = a - 1
+        while b >= 0 and keys[order[b]] > key:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = item
+
+
+@njit(cache=True, parallel=True)
+def in_focus_consensus(views, valid, has_valid, shifts, coeffs, ys, xs, rel_tol, floor, min_share,
+                       out_share, out_colour):
+    """The largest group of views that agree at each pixel ``(ys[k], xs[k])`` of the refocus.
+
+    View ``i`` (``views (n, Y, X, C)``) is sampled at ``(y + shifts[i, 0],
+    x + shifts[i, 1])``. The samples are sorted by luminance (``coeffs``)
+    and the heaviest window of width ``max(rel_tol * its lowest value,
+    floor)`` is the group. Where its share of the summed weight reaches
+    ``min_share``, ``out_share`` receives that share and ``out_colour`` the
+    group's mean colour; other pixels are left untouched.
+    """
+    n, _, _, n_ch = views.shape
+    count = ys.shape[0]
+    block = 256
+    for b in prange((count + block - 1) // block):
+        colour = np.empty((n, n_ch))
+        lum = np.empty(n)
+        weight = np.empty(n)
+        order = np.empty(n, np.int64)
+        sums = np.empty(n_ch)
+        for k in range(b * block, min(count, (b + 1) * block)):
+            y, x = ys[k], xs[k]
+            seen = 0
+            total = 0.0
+            for i in range(n):
+                w = bilinear_point(views[i], valid[i], has_valid, y + shifts[i, 0], x + shifts[i, 1], sums)
+                if w <= TAP_EPS:
+                    continue
+                value = 0.0
+                for c in range(n_ch):
+                    colour[seen, c] = sums[c] / w
+                    value += coeffs[c] * colour[seen, c]
+                lum[seen] = value
+                weight[seen] = w
+                total += w
+                seen += 1
+            if seen == 0:
+                continue
+            _sort_by(lum, order, seen)
+            best, first, last = 0.0, 0, 0
+            end, window = 0, 0.0
+            for start in range(seen):  # windows [lum[start], lum[start] + width], two pointers
+                low = lum[order[start]]
+                width = max(rel_tol * abs(low), floor)
+                while end < seen and lum[order[end]] <= low + width:
+                    window += weight[order[end]]
+                    end += 1
+                if window > best:
+                    best, first, last = window, start, end
+                window -= weight[order[start]]
+            if best < min_share * total:
+                continue
+            out_share[y, x] = best / total
+            for c in range(n_ch):
+                acc = 0.0
+                for t in range(first, last):
+                    acc += weight[order[t]] * colour[order[t], c]
+                out_colour[y, x, c] = acc / best

@@ -46,7 +46,8 @@ __all__ = ["TASKS", "REDUCE_OPTIONS", "Job", "BatchReport", "plan_batch", "run_j
 #: What a batch can do with each input.
 TASKS = ("convert", "reduce")
 #: Keyword options of :func:`~napari_lfalias.reduce_aliasing` a reduction batch passes on.
-REDUCE_OPTIONS = ("gamma", "n_patterns", "threshold", "threshold_scale", "method", "seed", "max_level", "solver")
+REDUCE_OPTIONS = ("gamma", "n_patterns", "threshold", "threshold_scale", "method", "seed", "max_level", "solver",
+                  "keep_in_focus")
 MARKER_DIR = ".lfalias-batch"
 
 
@@ -170,7 +171,7 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
     **detect_kw
         Options of :func:`~napari_lfalias.reduce_aliasing` (``REDUCE_OPTIONS``:
         ``gamma``, ``n_patterns``, ``threshold``, ``threshold_scale``,
-        ``method``, ``seed``, ``max_level``, ``solver``).
+        ``method``, ``seed``, ``max_level``, ``solver``, ``keep_in_focus``).
 
     Returns
     -------

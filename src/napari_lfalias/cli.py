@@ -103,6 +103,11 @@ def _add_reduction_options(parser):
         help="Poisson solver of the gradient-domain fusion: auto (exact, keeps every pixel of level 0), "
         "lu (sparse direct), multigrid, dct (fastest; may move pixels outside the fused region) (default auto)",
     )
+    group.add_argument(
+        "--keep-in-focus", action="store_true",
+        help="keep the in-focus surface sharp where a defocused occluder partly hides it (beyond the paper; "
+        "pays off at low thresholds such as 0.005)",
+    )
 
 
 def _add_contrast(parser):

@@ -26,6 +26,14 @@ What is computed
   resolution, only for the levels some pixel takes. The pyramid pools only
   the pixels with ``l* > 0`` (normalised convolution): in-focus content
   next to an aliased region does not bleed into its coarse rendering.
+- The in-focus layer (``keep_in_focus``, :mod:`.in_focus`): where a
+  defocused occluder partly hides an in-focus surface, the views that
+  agree on the surface are split off the pixel; the renderings blur only
+  the occluder's share and contribution and keep the surface sharp. This
+  goes beyond the paper, whose blur of the whole pixel costs the in-focus
+  texture around every defocused occluder; it is an option (off by
+  default) because it pays off only at low thresholds (measured in
+  ``benchmarks/results/reduction.md``).
 - The Poisson solve only on the bounding box of the pixels with
   ``l* > 0``; nothing when no pixel is aliased.
 
@@ -44,6 +52,7 @@ import numpy as np
 from . import _validate
 from .detect import DARK_FLOOR, AliasingDetector
 from .errors import ParameterError
+from .in_focus import in_focus_layer
 from .poisson import fuse_gradients
 from .pyramid import level_shape, pyr_down, pyr_up
 
@@ -81,9 +90,11 @@ class Reduction:
     detections: list = field(default_factory=list)
 
 
-def _check(max_level, solver, screen):
+def _check(max_level, solver, screen, keep_in_focus):
     max_level = _validate.integer_at_least("max_level", max_level, 0)
     _validate.one_of("solver", solver, SOLVERS)
+    if not isinstance(keep_in_focus, (bool, np.bool_)):
+        raise ParameterError(f"keep_in_focus must be True or False, got {keep_in_focus!r}")
     return max_level, _validate.non_negative_float("screen", screen)
 
 
@@ -144,9 +155,33 @@ def _level_renderings(image, levels, weights):
     return out
 
 
+def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
+    """``renderings`` with the in-focus layer of each aliased pixel kept sharp (:mod:`.in_focus`).
+
+    Where a group of agreeing views is found, the level-``l`` rendering is
+    ``blur_l(share) * colour + blur_l(rest)``: the occluder's silhouette
+    (``share``) and contribution (``rest = refocused - share * colour``)
+    blurred, the surface's ``colour`` kept. The blur pools every pixel,
+    the unaliased ones as fully in focus (share 1, rest 0), so the
+    silhouette fades into the in-focus surface around it. Elsewhere the
+    rendering is left as it is.
+    """
+    aliased = level_map > 0
+    share, colour = in_focus_layer(lf, slope, aliased, floor)
+    found = share > 0
+    if not found.any():
+        return renderings
+    share[~aliased] = 1.0
+    colour[~aliased] = refocused[~aliased]
+    layers = np.concatenate([share[..., None], refocused - share[..., None] * colour], axis=-1)
+    blurred = _level_renderings(layers, list(renderings), np.ones(share.shape, np.float32))
+    return {level: np.where(found[..., None], blurred[level][..., :1] * colour + blurred[level][..., 1:], rendering)
+            for level, rendering in renderings.items()}
+
+
 def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_level=3, method="analytic",
                     seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
-                    solver="auto", screen=SCREEN, detector=None):
+                    solver="auto", screen=SCREEN, keep_in_focus=False, detector=None):
     """Refocus ``lf`` at ``slope`` with angular aliasing reduced (Algorithm 2).
 
     Parameters
@@ -167,6 +202,14 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
     screen : float
         Weight of the data term of the screened fusion (>= 0; module
         notes). 0 is the plain Poisson fusion of Perez et al.
+    keep_in_focus : bool
+        Keep the in-focus surface sharp where a defocused occluder partly
+        hides it (module notes, :mod:`napari_lfalias.in_focus`). The
+        default, False, is the paper's Algorithm 2, which blurs the whole
+        pixel. True pays off at low thresholds, where the reduction acts
+        on whole occluders (T = 0.005: up to +6 dB); at the paper's T =
+        0.02 it sharpens the in-focus pixels but loses up to 1.5 dB over
+        the whole image (``benchmarks/results/reduction.md``).
     detector : AliasingDetector, optional
         A detector of ``lf`` to reuse (its pyramid, moments and stacks).
 
@@ -191,7 +234,7 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
     """
     steps = iter_reduce_aliasing(lf, slope, gamma, n_patterns, threshold, max_level, method, seed,
                                  threshold_scale=threshold_scale, luminance=luminance, dark_floor=dark_floor,
-                                 solver=solver, screen=screen, detector=detector)
+                                 solver=solver, screen=screen, keep_in_focus=keep_in_focus, detector=detector)
     while True:
         try:
             next(steps)
@@ -201,7 +244,7 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
 
 def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_level=3, method="analytic",
                          seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
-                         solver="auto", screen=SCREEN, detector=None):
+                         solver="auto", screen=SCREEN, keep_in_focus=False, detector=None):
     """:func:`reduce_aliasing` step by step: a generator for progress reports and cancellation.
 
     Yields ``(done, total)`` after each stage (the detection of every
@@ -230,7 +273,7 @@ def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, m
     """
     from .refocus import refocus
 
-    max_level, screen = _check(max_level, solver, screen)
+    max_level, screen = _check(max_level, solver, screen, keep_in_focus)
     if detector is None:
         detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor)
     elif not isinstance(detector, AliasingDetector) or detector.source is not lf:
@@ -261,6 +304,8 @@ def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, m
     present = np.flatnonzero(np.bincount(level_map.ravel(), minlength=max_level + 1))
     renderings = _level_renderings(refocused, [int(level) for level in present if level > 0],
                                    (level_map > 0).astype(np.float32))
+    if keep_in_focus:
+        renderings = _keep_in_focus(lf, slope, level_map, refocused, renderings, detector.floor)
     sources = [renderings.get(level, refocused) for level in range(1, int(level_map.max()) + 1)]
     yield (total - 1, total)
     image = fuse_gradients(refocused, sources, level_map, method=solver, screen=screen)

@@ -33,7 +33,8 @@ def detect_options(args):
 
 def reduce_options(args):
     """Keyword options of ``reduce_aliasing`` from parsed arguments."""
-    return {**detect_options(args), "max_level": args.levels, "solver": args.solver}
+    return {**detect_options(args), "max_level": args.levels, "solver": args.solver,
+            "keep_in_focus": args.keep_in_focus}
 
 
 def thresholded_cv(detection):

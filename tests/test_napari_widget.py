@@ -249,6 +249,23 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     assert widget.shutdown()
 
 
+def test_keep_in_focus_box_gives_the_api_reduction(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    widget.focus_slider.setValue(-4.0)  # on the wall, behind the defocused cube
+    widget.threshold_slider.setValue(0.005)
+    widget.keep_check.setChecked(True)
+    _idle(qtbot, widget)
+    widget.reduce()
+    fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
+    params = widget.params()
+    assert params.keep_in_focus and params.threshold == pytest.approx(0.005, rel=0.02)
+    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, keep_in_focus=True,
+                                   **params.detect_kwargs())
+    np.testing.assert_array_equal(fused.data, expected.image)
+    paper = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())
+    assert not np.allclose(fused.data, paper.image, atol=1e-3)
+
+
 def test_stale_reduction_is_dropped_and_cancel_stops(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
     _idle(qtbot, widget)

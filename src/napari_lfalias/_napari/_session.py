@@ -55,6 +55,7 @@ class DetectionParams:
     method: str = "analytic"
     seed: int = 0
     max_level: int = 3
+    keep_in_focus: bool = False
 
     def detect_kwargs(self):
         """Keyword arguments of ``detect_aliasing`` and ``reduce_aliasing``."""
@@ -276,6 +277,7 @@ class AliasingSession:
         try:
             # the core's own steps: progress per stage, and a quit() takes effect between two of them
             return (yield from iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
-                                                    detector=detector, **params.detect_kwargs()))
+                                                    keep_in_focus=params.keep_in_focus, detector=detector,
+                                                    **params.detect_kwargs()))
         finally:
             self._lock.release()

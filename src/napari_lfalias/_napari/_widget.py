@@ -105,6 +105,10 @@ class AliasingWidget(QWidget):
         self.seed_spin = QSpinBox()
         self.seed_spin.setRange(0, 2**31 - 1)
         self.seed_spin.setValue(defaults.seed)
+        self.keep_check = QCheckBox("keep in-focus layer")
+        self.keep_check.setChecked(defaults.keep_in_focus)
+        self.keep_check.setToolTip("Reduce: keep the in-focus surface sharp where a defocused occluder "
+                                   "partly hides it (beyond the paper; pays off at low T)")
         self.live_check = QCheckBox("live")
         self.live_check.setChecked(True)
         self.update_button = QPushButton("Detect")
@@ -127,6 +131,7 @@ class AliasingWidget(QWidget):
         form.addRow("method", self.method_combo)
         form.addRow("max level", self.level_spin)
         form.addRow("seed", self.seed_spin)
+        form.addRow("", self.keep_check)
         buttons = QHBoxLayout()
         for widget in (self.live_check, self.update_button, self.reduce_button, self.cancel_button):
             buttons.addWidget(widget)
@@ -208,6 +213,7 @@ class AliasingWidget(QWidget):
             method=self.method_combo.currentText(),
             seed=int(self.seed_spin.value()),
             max_level=int(self.level_spin.value()),
+            keep_in_focus=self.keep_check.isChecked(),
         )
 
     def _show_depth(self):

@@ -24,12 +24,10 @@ no stricter test is needed. Measured in ``benchmarks/results/reduction.md``.
 
 from __future__ import annotations
 
-import importlib
-
 import numpy as np
 
 from .lightfield import REC709
-from .refocus import _KERNEL_LOCK
+from .refocus import _run
 
 __all__ = ["in_focus_layer", "REL_TOL", "MIN_SHARE"]
 
@@ -83,9 +81,7 @@ def in_focus_layer(lf, slope, pixels, floor, *, rel_tol=REL_TOL, min_share=MIN_S
     ys, xs = np.nonzero(pixels)
     share = np.zeros((height, width), np.float32)
     colour = np.zeros((height, width, n_ch), np.float32)
-    kernels = importlib.import_module("._kernels", __package__)
-    with _KERNEL_LOCK:
-        kernels.in_focus_consensus(views, valid, has_valid, slope * lf.flat_positions().astype(np.float64),
-                                   np.asarray(coeffs, np.float64), ys.astype(np.int64), xs.astype(np.int64),
-                                   float(rel_tol), float(floor), float(min_share), share, colour)
+    _run("in_focus_consensus", views, valid, has_valid, slope * lf.flat_positions().astype(np.float64),
+         np.asarray(coeffs, np.float64), ys.astype(np.int64), xs.astype(np.int64),
+         float(rel_tol), float(floor), float(min_share), share, colour)
     return share, colour

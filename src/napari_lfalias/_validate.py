@@ -7,6 +7,8 @@ parameter's name, the value received and the range expected.
 import math
 import numbers
 
+import numpy as np
+
 from .errors import ParameterError
 
 
@@ -60,3 +62,10 @@ def one_of(name, value, choices):
         options = ", ".join(repr(c) for c in choices)
         raise ParameterError(f"{name} must be one of {options}; got {value!r}")
     return value
+
+
+def boolean(name, value):
+    """Return ``value`` as a bool, checking it is True or False (a NumPy bool too)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ParameterError(f"{name} must be True or False, got {value!r}")
+    return bool(value)

@@ -356,9 +356,7 @@ class AliasingDetector:
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
         _validate.one_of("luminance", luminance, LUMINANCE_MODES)
         self.dark_floor = _validate.non_negative_float("dark_floor", dark_floor)
-        if not isinstance(skip_flat, (bool, np.bool_)):
-            raise ParameterError(f"skip_flat must be True or False, got {skip_flat!r}")
-        self.skip_flat = bool(skip_flat)
+        self.skip_flat = _validate.boolean("skip_flat", skip_flat)
         self.tile = _validate.integer_at_least("tile", tile, 4)
         self.luminance = luminance
         self.source = lf  # as given (lazy ones stay lazy)

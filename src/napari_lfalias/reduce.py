@@ -93,8 +93,7 @@ class Reduction:
 def _check(max_level, solver, screen, keep_in_focus):
     max_level = _validate.integer_at_least("max_level", max_level, 0)
     _validate.one_of("solver", solver, SOLVERS)
-    if not isinstance(keep_in_focus, (bool, np.bool_)):
-        raise ParameterError(f"keep_in_focus must be True or False, got {keep_in_focus!r}")
+    _validate.boolean("keep_in_focus", keep_in_focus)
     return max_level, _validate.non_negative_float("screen", screen)
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _validate
 from ..errors import DecodeError, ParameterError
 from ..lightfield import LightField
 from .hci import hci_metadata
@@ -163,8 +164,7 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options
         raise ParameterError(
             f"unknown option(s) for a camera-array folder: {names}; accepted: {', '.join(_ACCEPTED)}"
         )
-    if not isinstance(lazy, (bool, np.bool_)):
-        raise ParameterError(f"lazy must be True or False, got {lazy!r}")
+    _validate.boolean("lazy", lazy)
     if progress is not None and not callable(progress):
         raise ParameterError(f"progress must be a callable progress(done, total), got {progress!r}")
     folder = Path(folder)

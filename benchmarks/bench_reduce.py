@@ -14,7 +14,11 @@ with the ground-truth disparity (Yu et al.), and ours (exact and
 Monte-Carlo detection, at the paper's T = 0.02 and at a lower T), plus
 ours with the plain (unscreened) Poisson fusion of the paper as an
 ablation, and ours keeping the in-focus layer (``keep_in_focus=True``,
-:mod:`napari_lfalias.in_focus`). Columns: PSNR and SSIM against the reference over the whole
+:mod:`napari_lfalias.in_focus`). Two ceiling rows measure Algorithm 2 with a
+perfect detector: the renderings and fusion of
+:func:`~napari_lfalias.reduce.fuse_levels` on the level map the ground-truth
+disparity implies (:func:`~napari_lfalias.reduce.levels_from_disparity`),
+everywhere and on the truly aliased pixels only. Columns: PSNR and SSIM against the reference over the whole
 image, the in-focus region (``|d - slope|`` times the view spacing below
 0.5 px: a point moves less than half a pixel between neighbouring views) and
 the aliased region (where the naive refocus differs from the reference by
@@ -38,6 +42,7 @@ import numpy as np
 import napari_lfalias as lfa
 from napari_lfalias import metrics
 from napari_lfalias.baselines import view_spacing
+from napari_lfalias.reduce import fuse_levels, levels_from_disparity
 from napari_lfalias.synthetic import brick_room
 
 from _harness import aliasing_truth, median_iqr, memory_floor, table, timings, write_report
@@ -46,8 +51,9 @@ HCI = Path(__file__).resolve().parents[2] / "shared" / "lf_data" / "hci_antinous
 LOW_T = 0.005
 
 
-def methods(lf, slope, disparity):
+def methods(lf, slope, disparity, aliased):
     """Name -> function returning the refocused image."""
+    truth = levels_from_disparity(disparity, slope, view_spacing(lf.positions))
     return {
         "naive refocus": lambda: lfa.refocus(lf, slope),
         "prefilter (Levoy-Hanrahan)": lambda: lfa.prefilter_refocus(lf, slope),
@@ -61,6 +67,9 @@ def methods(lf, slope, disparity):
         "ours, in-focus layer kept, T=0.02": lambda: lfa.reduce_aliasing(lf, slope, keep_in_focus=True).image,
         f"ours, in-focus layer kept, T={LOW_T}": lambda: lfa.reduce_aliasing(
             lf, slope, threshold=LOW_T, keep_in_focus=True).image,
+        "ceiling: Algorithm 2 with the ground-truth level map": lambda: fuse_levels(lfa.refocus(lf, slope), truth),
+        "ceiling: the same, on the truly aliased pixels only": lambda: fuse_levels(
+            lfa.refocus(lf, slope), np.where(aliased, truth, 0)),
     }
 
 
@@ -81,7 +90,7 @@ def evaluate(name, lf, slope, reference, disparity, repeats, images):
     aliased = aliasing_truth(naive, reference)
     regions = {"all": None, "in focus": in_focus, "in focus, not aliased": in_focus & ~aliased, "aliased": aliased}
     rows = []
-    for label, render in methods(lf, slope, disparity).items():
+    for label, render in methods(lf, slope, disparity, aliased).items():
         image = render()
         median, _ = median_iqr(timings(render, repeats, warmup=0))
         rows.append([label] + region_scores(image, reference, regions) + [f"{median * 1e3:.0f}"])

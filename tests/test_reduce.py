@@ -6,7 +6,9 @@ import pytest
 import napari_lfalias as lfa
 from napari_lfalias import detect as detect_module
 from napari_lfalias.detect import AliasingDetector
+from napari_lfalias.baselines import view_spacing
 from napari_lfalias.errors import ParameterError
+from napari_lfalias.reduce import fuse_levels, levels_from_disparity
 from napari_lfalias.synthetic import brick_room, textured_plane
 
 
@@ -161,3 +163,63 @@ def test_bad_slope_and_light_field_are_parameter_errors(room):
         lfa.reduce_aliasing(room.lightfield, float("nan"))
     with pytest.raises(ParameterError, match="LightField"):
         lfa.reduce_aliasing(np.zeros((2, 2, 8, 8, 1)), 0.0)
+
+
+def test_fuse_levels_renders_what_the_reduction_made_of_its_own_level_map(room):
+    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    np.testing.assert_array_equal(fuse_levels(result.refocused, result.level), result.image)
+    np.testing.assert_array_equal(fuse_levels(result.refocused, np.zeros_like(result.level)), result.refocused)
+
+
+def test_the_ground_truth_level_map_blurs_only_the_defocused_and_brings_it_nearer_the_reference(room):
+    """The ceiling of Algorithm 2 (a perfect detector): in focus on the cube, the defocused wall gains."""
+    slope = 4.0
+    level = levels_from_disparity(room.disparity, slope, view_spacing(room.lightfield.positions))
+    in_focus = np.abs(room.disparity - slope) < 0.5
+    assert not level[in_focus].any() and level.max() == 3
+    naive = lfa.refocus(room.lightfield, slope)
+    fused = fuse_levels(naive, level)
+    np.testing.assert_array_equal(fused[level == 0], naive[level == 0])
+    reference = room.reference(slope)
+    acted = level > 0
+    assert psnr(fused, reference, acted) >= psnr(naive, reference, acted) + 3.0
+
+
+def test_levels_from_disparity_is_the_first_level_where_a_point_moves_a_pixel_or_less():
+    shift = np.array([[0.0, 0.5, 1.0, 1.01, 2.0, 2.01, 4.0, 4.01, 8.0, 100.0]])
+    np.testing.assert_array_equal(levels_from_disparity(shift + 3.0, 3.0, max_level=3)[0],
+                                  [0, 0, 0, 1, 1, 2, 2, 3, 3, 3])
+    np.testing.assert_array_equal(levels_from_disparity(-shift / 4, 0.0, spacing=4.0, max_level=5)[0],
+                                  [0, 0, 0, 1, 1, 2, 2, 3, 3, 5])
+
+
+@pytest.mark.parametrize(
+    "image, level, kwargs, word",
+    [
+        (np.zeros((8, 8)), np.zeros((8, 8), int), {}, "refocused"),
+        (np.full((8, 8, 3), np.nan), np.zeros((8, 8), int), {}, "refocused"),
+        (np.zeros((8, 8, 3)), np.zeros((8, 9), int), {}, "level_map"),
+        (np.zeros((8, 8, 3)), np.zeros((8, 8)), {}, "level_map"),
+        (np.zeros((8, 8, 3)), np.full((8, 8), -1), {}, "level_map"),
+        (np.zeros((8, 8, 3)), np.full((8, 8), 17), {}, "level_map"),
+        (np.zeros((8, 8, 3)), np.ones((8, 8), int), dict(solver="cg"), "solver"),
+        (np.zeros((8, 8, 3)), np.ones((8, 8), int), dict(screen=-1.0), "screen"),
+    ],
+)
+def test_fuse_levels_rejects_bad_input(image, level, kwargs, word):
+    with pytest.raises(ParameterError, match=word):
+        fuse_levels(image, level, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "disparity, kwargs, word",
+    [
+        (np.zeros(8), {}, "disparity"), (np.full((4, 4), np.inf), {}, "disparity"),
+        (np.zeros((4, 4)), dict(slope=float("nan")), "slope"), (np.zeros((4, 4)), dict(spacing=0.0), "spacing"),
+        (np.zeros((4, 4)), dict(max_level=17), "max_level"), (np.zeros((4, 4)), dict(max_level=-1), "max_level"),
+    ],
+)
+def test_levels_from_disparity_rejects_bad_input(disparity, kwargs, word):
+    kwargs = {"slope": 0.0, **kwargs}
+    with pytest.raises(ParameterError, match=word):
+        levels_from_disparity(disparity, **kwargs)

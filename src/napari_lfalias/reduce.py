@@ -37,6 +37,12 @@ What is computed
 - The Poisson solve only on the bounding box of the pixels with
   ``l* > 0``; nothing when no pixel is aliased.
 
+A level map of your own (a depth map's, a mask's, a synthetic scene's
+ground truth) goes straight to the rendering and fusion:
+:func:`fuse_levels`, with :func:`levels_from_disparity` for a known
+disparity. The benchmarks use the two to measure the ceiling of the
+method, Algorithm 2 with a perfect detector.
+
 The level renderings come from the refocused image rather than from a
 refocus of each level's views: the two differ only in how the border
 weights are pooled, and the former costs one image pyramid instead of
@@ -56,12 +62,14 @@ from .in_focus import in_focus_layer
 from .poisson import fuse_gradients
 from .pyramid import level_shape, pyr_down, pyr_up
 
-__all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "SOLVERS", "SCREEN"]
+__all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels", "levels_from_disparity", "SOLVERS", "SCREEN", "MAX_LEVEL"]
 
 #: Solvers of the gradient-domain fusion (see :mod:`napari_lfalias.poisson`).
 SOLVERS = ("auto", "lu", "multigrid", "dct")
 #: Default weight of the data term of the screened fusion (module notes).
 SCREEN = 0.25
+#: The coarsest level :func:`fuse_levels` renders (a 2**16-pixel blur).
+MAX_LEVEL = 16
 
 
 @dataclass(frozen=True)
@@ -152,6 +160,144 @@ def _level_renderings(image, levels, weights):
         np.divide(num, den[..., None], out=rendering, where=den[..., None] > 1e-6)
         out[level] = rendering
     return out
+
+
+def _renderings(refocused, level_map):
+    """The level renderings (:func:`_level_renderings`) of the levels ``level_map`` uses, pooling its pixels > 0."""
+    present = np.flatnonzero(np.bincount(level_map.ravel()))
+    return _level_renderings(refocused, [int(level) for level in present if level > 0],
+                             (level_map > 0).astype(np.float32))
+
+
+def _fuse(refocused, level_map, renderings, solver, screen):
+    """``refocused`` where ``level_map`` is 0, the gradients of ``renderings[l]`` where it is ``l``."""
+    sources = [renderings.get(level, refocused) for level in range(1, int(level_map.max()) + 1)]
+    return fuse_gradients(refocused, sources, level_map, method=solver, screen=screen)
+
+
+def fuse_levels(refocused, level_map, *, solver="auto", screen=SCREEN):
+    """Algorithm 2's rendering and fusion for a level map you already have.
+
+    :func:`reduce_aliasing` finds ``l*`` by detection (Eq. 8) and then
+    calls this: the aliased pixels take the gradients of the level-``l*``
+    rendering, fused with the naive refocus (module notes). With a level
+    map from elsewhere (a depth map, a hand-drawn mask, the ground truth
+    of a synthetic scene) it renders what Algorithm 2 would make of it:
+    ``benchmarks/bench_reduce.py`` uses it to measure the ceiling of the
+    method, the result with a perfect detector.
+
+    Parameters
+    ----------
+    refocused : array_like, shape (Y, X, C)
+        The naive refocus (level 0), e.g. :func:`~napari_lfalias.refocus`.
+    level_map : array_like of int, shape (Y, X)
+        The pyramid level of each pixel: 0 keeps ``refocused``, ``l >= 1``
+        takes the level-``l`` rendering. At most :data:`MAX_LEVEL`.
+    solver : {"auto", "lu", "multigrid", "dct"}
+        The Poisson solver, as in :func:`reduce_aliasing`.
+    screen : float
+        Weight of the data term of the screened fusion (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (Y, X, C), float32
+        The fused image; equal to ``refocused`` where ``level_map`` is 0
+        (for every solver but ``"dct"``).
+
+    Raises
+    ------
+    ParameterError
+        For an image that is not (Y, X, C) and finite, a level map of
+        another shape, not integer, or outside ``0 .. MAX_LEVEL``, or a
+        bad ``solver`` or ``screen``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import napari_lfalias as lfa
+    >>> from napari_lfalias.reduce import fuse_levels
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> lf = brick_room(n_views=4, size=64, seed=0).lightfield
+    >>> res = lfa.reduce_aliasing(lf, slope=4.0, threshold=0.01)
+    >>> bool(np.array_equal(fuse_levels(res.refocused, res.level), res.image))
+    True
+    """
+    refocused = np.asarray(refocused)
+    if refocused.ndim != 3 or min(refocused.shape) < 1 or not np.issubdtype(refocused.dtype, np.floating):
+        raise ParameterError(
+            f"refocused must be a float array of shape (Y, X, C), got {refocused.dtype} {refocused.shape}")
+    if not np.all(np.isfinite(refocused)):
+        raise ParameterError("refocused holds NaN or Inf values; pass a finite image")
+    level_map = np.asarray(level_map)
+    if level_map.shape != refocused.shape[:2]:
+        raise ParameterError(f"level_map must have shape {refocused.shape[:2]} (refocused's Y, X), "
+                             f"got {level_map.shape}")
+    if not np.issubdtype(level_map.dtype, np.integer) or level_map.dtype == np.bool_:
+        raise ParameterError(f"level_map must be an integer array, got dtype {level_map.dtype}")
+    if level_map.min() < 0 or level_map.max() > MAX_LEVEL:
+        raise ParameterError(f"level_map must lie in 0..{MAX_LEVEL}, got values in "
+                             f"{level_map.min()}..{level_map.max()}")
+    _validate.one_of("solver", solver, SOLVERS)
+    screen = _validate.non_negative_float("screen", screen)
+    refocused = refocused.astype(np.float32, copy=False)
+    level_map = level_map.astype(np.uint8)
+    if not level_map.any():
+        return refocused.copy()
+    return _fuse(refocused, level_map, _renderings(refocused, level_map), solver, screen)
+
+
+def levels_from_disparity(disparity, slope, spacing=1.0, max_level=3):
+    """The level map a known disparity implies: where a point moves one pixel or less between views.
+
+    A point of disparity ``d`` moves ``|d - slope| * spacing`` pixels
+    between neighbouring views of the refocus at ``slope``, and half as
+    far on each coarser pyramid level; its level is the first on which
+    that shift is at most one pixel (the views sample it densely there),
+    ``ceil(log2(shift))``, clipped to ``0 .. max_level``. This is the
+    level map a perfect detector would hand :func:`fuse_levels`.
+
+    Parameters
+    ----------
+    disparity : array_like, shape (Y, X)
+        Disparity of every pixel (pixels per unit of view position).
+    slope : float
+        Disparity in focus.
+    spacing : float
+        Distance between neighbouring views, in units of view position
+        (:func:`~napari_lfalias.baselines.view_spacing`).
+    max_level : int
+        The coarsest level, ``0 .. MAX_LEVEL``.
+
+    Returns
+    -------
+    ndarray, shape (Y, X), uint8
+
+    Raises
+    ------
+    ParameterError
+        For a disparity that is not a finite (Y, X) array, or a bad
+        ``slope``, ``spacing`` or ``max_level``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> levels_from_disparity(np.array([[0.0, 1.5, 2.0, 5.0, 40.0]]), slope=0.0)
+    array([[0, 1, 1, 3, 3]], dtype=uint8)
+    """
+    disparity = np.asarray(disparity)
+    if disparity.ndim != 2 or not np.issubdtype(disparity.dtype, np.number) or disparity.dtype == np.bool_:
+        raise ParameterError(f"disparity must be a real (Y, X) array, got {disparity.dtype} {disparity.shape}")
+    if not np.all(np.isfinite(disparity)):
+        raise ParameterError("disparity holds NaN or Inf values; pass a finite disparity map")
+    slope = _validate.finite_float("slope", slope)
+    spacing = _validate.positive_float("spacing", spacing)
+    max_level = _validate.integer_at_least("max_level", max_level, 0)
+    if max_level > MAX_LEVEL:
+        raise ParameterError(f"max_level must be at most {MAX_LEVEL}, got {max_level}")
+    shift = np.abs(disparity.astype(np.float64) - slope) * spacing
+    with np.errstate(divide="ignore"):
+        level = np.ceil(np.log2(shift))
+    return np.clip(level, 0, max_level).astype(np.uint8)
 
 
 def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
@@ -300,13 +446,10 @@ def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, m
     if not level_map.any():
         yield (total, total)
         return Reduction(refocused, level_map, first.cv, refocused, detections)
-    present = np.flatnonzero(np.bincount(level_map.ravel(), minlength=max_level + 1))
-    renderings = _level_renderings(refocused, [int(level) for level in present if level > 0],
-                                   (level_map > 0).astype(np.float32))
+    renderings = _renderings(refocused, level_map)
     if keep_in_focus:
         renderings = _keep_in_focus(lf, slope, level_map, refocused, renderings, detector.floor)
-    sources = [renderings.get(level, refocused) for level in range(1, int(level_map.max()) + 1)]
     yield (total - 1, total)
-    image = fuse_gradients(refocused, sources, level_map, method=solver, screen=screen)
+    image = _fuse(refocused, level_map, renderings, solver, screen)
     yield (total, total)
     return Reduction(image, level_map, first.cv, refocused, detections)

@@ -267,15 +267,18 @@ def prefilter_refocus(lf, slope, disparity_range=None, *, width=None):
 
 # -- depth-aware rendering -----------------------------------------------------------------
 
-def _disparity_map(disparity, shape):
+def _disparity_map(disparity, shape=None):
+    """``disparity`` as a finite float64 (Y, X) array: of ``shape`` if given, else of any 2-D shape."""
     disparity = np.asarray(disparity)
-    if disparity.shape != tuple(shape):
+    if shape is None and disparity.ndim != 2:
+        raise ParameterError(f"disparity must be a (Y, X) array, got shape {disparity.shape}")
+    if shape is not None and disparity.shape != tuple(shape):
         raise ParameterError(f"disparity must have the views' shape (Y, X) = {tuple(shape)}, got {disparity.shape}")
     if disparity.dtype == np.bool_ or not np.issubdtype(disparity.dtype, np.number):
         raise ParameterError(f"disparity must be a real array, got dtype {disparity.dtype}")
     disparity = disparity.astype(np.float64)
     if not np.all(np.isfinite(disparity)):
-        raise ParameterError("disparity holds NaN or Inf values; fill them before rendering")
+        raise ParameterError("disparity holds NaN or Inf values; fill them first")
     return disparity
 
 

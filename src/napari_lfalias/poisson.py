@@ -371,15 +371,16 @@ def _apply_correction(image, mask, make_rhs, method, tol, screen):
 
 # -- fusion ------------------------------------------------------------------------------
 
-def _labels(labels, shape, n_sources):
+def _labels(labels, shape, highest, name="labels", meaning="0 = base, k = sources[k - 1]"):
+    """``labels`` as an integer (Y, X) array of ``shape`` with values in ``0 .. highest``."""
     labels = np.asarray(labels)
     if labels.shape != shape:
-        raise ParameterError(f"labels must have shape {shape} (the image's Y, X), got {labels.shape}")
+        raise ParameterError(f"{name} must have shape {shape} (the image's Y, X), got {labels.shape}")
     if not np.issubdtype(labels.dtype, np.integer):
-        raise ParameterError(f"labels must be an integer array, got dtype {labels.dtype}")
-    if labels.size and (labels.min() < 0 or labels.max() > n_sources):
+        raise ParameterError(f"{name} must be an integer array, got dtype {labels.dtype}")
+    if labels.size and (labels.min() < 0 or labels.max() > highest):
         raise ParameterError(
-            f"labels must lie in 0..{n_sources} (0 = base, k = sources[k - 1]), "
+            f"{name} must lie in 0..{highest} ({meaning}), "
             f"got values in {labels.min()}..{labels.max()}"
         )
     return labels

@@ -56,10 +56,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _validate
+from .baselines import _disparity_map
 from .detect import DARK_FLOOR, AliasingDetector
 from .errors import ParameterError
 from .in_focus import in_focus_layer
-from .poisson import fuse_gradients
+from .poisson import _labels, fuse_gradients
 from .pyramid import level_shape, pyr_down, pyr_up
 
 __all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels", "levels_from_disparity", "SOLVERS", "SCREEN", "MAX_LEVEL"]
@@ -228,15 +229,7 @@ def fuse_levels(refocused, level_map, *, solver="auto", screen=SCREEN):
             f"refocused must be a float array of shape (Y, X, C), got {refocused.dtype} {refocused.shape}")
     if not np.all(np.isfinite(refocused)):
         raise ParameterError("refocused holds NaN or Inf values; pass a finite image")
-    level_map = np.asarray(level_map)
-    if level_map.shape != refocused.shape[:2]:
-        raise ParameterError(f"level_map must have shape {refocused.shape[:2]} (refocused's Y, X), "
-                             f"got {level_map.shape}")
-    if not np.issubdtype(level_map.dtype, np.integer) or level_map.dtype == np.bool_:
-        raise ParameterError(f"level_map must be an integer array, got dtype {level_map.dtype}")
-    if level_map.min() < 0 or level_map.max() > MAX_LEVEL:
-        raise ParameterError(f"level_map must lie in 0..{MAX_LEVEL}, got values in "
-                             f"{level_map.min()}..{level_map.max()}")
+    level_map = _labels(level_map, refocused.shape[:2], MAX_LEVEL, "level_map", "0 = refocused, l = level l")
     _validate.one_of("solver", solver, SOLVERS)
     screen = _validate.non_negative_float("screen", screen)
     refocused = refocused.astype(np.float32, copy=False)
@@ -284,17 +277,13 @@ def levels_from_disparity(disparity, slope, spacing=1.0, max_level=3):
     >>> levels_from_disparity(np.array([[0.0, 1.5, 2.0, 5.0, 40.0]]), slope=0.0)
     array([[0, 1, 1, 3, 3]], dtype=uint8)
     """
-    disparity = np.asarray(disparity)
-    if disparity.ndim != 2 or not np.issubdtype(disparity.dtype, np.number) or disparity.dtype == np.bool_:
-        raise ParameterError(f"disparity must be a real (Y, X) array, got {disparity.dtype} {disparity.shape}")
-    if not np.all(np.isfinite(disparity)):
-        raise ParameterError("disparity holds NaN or Inf values; pass a finite disparity map")
+    disparity = _disparity_map(disparity)
     slope = _validate.finite_float("slope", slope)
     spacing = _validate.positive_float("spacing", spacing)
     max_level = _validate.integer_at_least("max_level", max_level, 0)
     if max_level > MAX_LEVEL:
         raise ParameterError(f"max_level must be at most {MAX_LEVEL}, got {max_level}")
-    shift = np.abs(disparity.astype(np.float64) - slope) * spacing
+    shift = np.abs(disparity - slope) * spacing
     with np.errstate(divide="ignore"):
         level = np.ceil(np.log2(shift))
     return np.clip(level, 0, max_level).astype(np.uint8)

@@ -29,6 +29,10 @@ _LAZY = {
     "load": "loading",
     "detect_aliasing": "detect",
     "Detection": "detect",
+    "AliasingDetector": "detect",
+    "estimate_disparity": "disparity",
+    "DisparityEstimate": "disparity",
+    "antialiased_refocus": "render",
     "reduce_aliasing": "reduce",
     "Reduction": "reduce",
     "prefilter_refocus": "baselines",
@@ -38,7 +42,7 @@ _LAZY = {
 
 _SUBMODULES = {
     "decoders", "synthetic", "metrics", "poisson", "detect", "reduce",
-    "baselines", "refocus", "loading", "sweep", "pyramid",
+    "baselines", "refocus", "loading", "sweep", "pyramid", "disparity", "render", "depth_guided", "presets",
 }
 
 __all__ = [

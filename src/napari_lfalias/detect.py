@@ -93,6 +93,7 @@ from scipy.special import gammaln
 from . import _validate
 from .errors import ParameterError
 from .lightfield import REC709, LightField
+from .presets import resolve
 from .pyramid import lightfield_pyramid
 from .refocus import _inputs, _run, shift_views
 
@@ -108,7 +109,11 @@ __all__ = [
     "DARK_FLOOR",
 ]
 
-METHODS = ("analytic", "monte_carlo")
+#: Detection methods: "depth" (the default: predicted error against a dense aperture, from the
+#: light field's own disparity, :mod:`.depth_guided`), and the paper's Cv (exact or Monte Carlo).
+METHODS = ("depth", "analytic", "monte_carlo")
+#: The methods that compute the paper's Cv (Eq. 7).
+CV_METHODS = ("analytic", "monte_carlo")
 THRESHOLD_SCALES = ("cv", "angular")
 LUMINANCE_MODES = ("rec709", "max")
 #: Floor of the mean a Cv is divided by, as a fraction of the light field's brightest luminance.
@@ -351,7 +356,8 @@ class AliasingDetector:
     >>> again = detector.detect(1.0, gamma=0.3)   # reuses the moments of slope 1.0
     """
 
-    def __init__(self, lf, luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True, tile=TILE):
+    def __init__(self, lf, luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True, tile=TILE, *,
+                 disparity=None):
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
         _validate.one_of("luminance", luminance, LUMINANCE_MODES)
@@ -366,6 +372,18 @@ class AliasingDetector:
         self._slope = None  # the slope whose moments and stacks are kept
         self._moments = {}
         self._stacks = {}
+        self._disparity = disparity
+        self._guide = None
+
+    @property
+    def guide(self):
+        """The :class:`~napari_lfalias.depth_guided.DepthGuide` of the light field (disparity estimated
+        on first use, unless one was given), for ``method="depth"``."""
+        if self._guide is None:
+            from .depth_guided import DepthGuide
+
+            self._guide = DepthGuide(self.lf, self._disparity)
+        return self._guide
 
     # -- cached inputs -----------------------------------------------------------
     def level(self, level):
@@ -539,9 +557,29 @@ class AliasingDetector:
         shape = self.level(level).image_shape
         return cv.reshape(shape), count.reshape(shape)
 
+    def _depth_detection(self, slope, threshold, level, region):
+        """``method="depth"``: the predicted error against a dense aperture (:mod:`.depth_guided`)."""
+        from .refocus import refocus
+
+        if _validate.integer_at_least("level", level, 0) != 0:
+            raise ParameterError("method='depth' detects on the full-resolution refocus only (level=0); "
+                                 "pyramid levels belong to the Cv methods")
+        shape = self.lf.image_shape
+        if region is not None:
+            region = np.asarray(region)
+            if region.dtype != np.bool_ or region.shape != shape:
+                raise ParameterError(f"region must be a boolean array of shape {shape}, got {region.dtype} "
+                                     f"{region.shape}")
+        score = self.guide.scores(slope, refocus(self.lf, slope))
+        evaluated = np.ones(shape, bool) if region is None else region
+        score = np.where(evaluated, score, np.float32(0)).astype(np.float32)
+        ones = np.ones(shape, np.float32)
+        params = {"method": "depth", "gamma": None, "n_patterns": None, "seed": None}
+        return Detection(score, score > np.float32(threshold), ones, evaluated, threshold, "cv", slope, 0, params)
+
     # -- the public entry point ----------------------------------------------------------
-    def detect(self, slope, gamma=0.2, n_patterns=100, threshold=0.02, method="analytic", seed=None, *,
-               level=0, threshold_scale="cv", region=None):
+    def detect(self, slope, gamma=None, n_patterns=None, threshold=None, method=None, seed=None, *,
+               level=0, threshold_scale="cv", region=None, preset=None):
         """Detect angular aliasing at ``slope`` (see :func:`detect_aliasing`).
 
         Parameters
@@ -556,11 +594,17 @@ class AliasingDetector:
         -------
         Detection
         """
+        options = resolve(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns)
+        method, threshold = options["method"], options["threshold"]
+        gamma = 0.2 if options["gamma"] is None else options["gamma"]
+        n_patterns = 100 if options["n_patterns"] is None else options["n_patterns"]
         slope = _validate.finite_float("slope", slope)
         gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
         n_patterns = _validate.integer_at_least("n_patterns", n_patterns, 2)
         threshold = _validate.positive_float("threshold", threshold)
         _validate.one_of("method", method, METHODS)
+        if method == "depth":
+            return self._depth_detection(slope, threshold, level, region)
         _validate.one_of("threshold_scale", threshold_scale, THRESHOLD_SCALES)
         if seed is not None:
             seed = _validate.integer_at_least("seed", seed, 0)
@@ -594,8 +638,9 @@ class AliasingDetector:
                          threshold, threshold_scale, slope, level, params)
 
 
-def detect_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, method="analytic", seed=None, *,
-                    level=0, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True):
+def detect_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, method=None, seed=None, *,
+                    level=0, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True,
+                    disparity=None, preset=None):
     """Detect angular aliasing in the refocus of ``lf`` at ``slope`` (Algorithm 1).
 
     Parameters
@@ -657,6 +702,7 @@ def detect_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, method
     >>> det.cv.shape, bool(det.mask.any())
     ((64, 64), True)
     """
-    detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, skip_flat=skip_flat)
+    detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, skip_flat=skip_flat,
+                                disparity=disparity)
     return detector.detect(slope, gamma, n_patterns, threshold, method, seed,
-                           level=level, threshold_scale=threshold_scale)
+                           level=level, threshold_scale=threshold_scale, preset=preset)

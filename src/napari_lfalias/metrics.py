@@ -35,7 +35,18 @@ __all__ = [
     "roc_auc",
     "precision_recall_f1",
     "DetectionScores",
+    "luminance_difference",
+    "aliased_pixels",
+    "PERCEPTIBLE",
 ]
+
+#: Relative luminance difference a viewer perceives (the paper's T = 0.02, "minimal intensity of
+#: perceivable aliasing"): the ground truth of aliasing (DESIGN section 8).
+PERCEPTIBLE = 0.02
+#: The light blur (Gaussian sigma, px) applied before comparing, so single-pixel noise does not count.
+TRUTH_BLUR = 1.0
+#: The luminance a difference is divided by is at least this fraction of the brightest.
+TRUTH_FLOOR = 0.01
 
 #: SSIM settings of Wang et al. (2004): Gaussian window, its truncation (11 taps), K1, K2.
 SSIM_SIGMA = 1.5
@@ -333,3 +344,77 @@ def precision_recall_f1(mask, truth):
     recall = tp / actual if actual else float(predicted == 0)
     f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     return DetectionScores(float(precision), float(recall), float(f1))
+
+
+# -- the ground truth of aliasing ---------------------------------------------------------
+
+def _luminance(image):
+    from .lightfield import REC709
+
+    image = np.asarray(image, np.float32)
+    if image.ndim == 2:
+        return image
+    return image[..., 0] if image.shape[-1] == 1 else image @ REC709
+
+
+def luminance_difference(image, reference, sigma=TRUTH_BLUR, floor=TRUTH_FLOOR):
+    """Relative luminance difference of ``image`` from ``reference`` after a light blur.
+
+    ``|G*L(image) - G*L(reference)| / max(G*L(reference), floor * max L(reference))``
+    with ``L`` the Rec. 709 luminance and ``G`` a Gaussian of ``sigma`` px.
+
+    Parameters
+    ----------
+    image, reference : array_like, shape (Y, X) or (Y, X, C)
+        Linear intensity.
+    sigma : float
+        The blur (0: none).
+    floor : float
+        Fraction of the reference's brightest luminance that floors the
+        divisor (dark pixels do not blow up).
+
+    Returns
+    -------
+    ndarray, shape (Y, X), float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> a = np.full((8, 8, 1), 0.50, np.float32)
+    >>> round(float(luminance_difference(a * 1.02, a).max()), 3)
+    0.02
+    """
+    image, reference = _image_pair(image, reference)
+    a, b = _luminance(image), _luminance(reference)
+    if sigma > 0:
+        a, b = ndimage.gaussian_filter(a, sigma), ndimage.gaussian_filter(b, sigma)
+    bottom = max(float(floor) * float(b.max(initial=0.0)), float(np.finfo(np.float32).tiny))
+    return (np.abs(a - b) / np.maximum(b, bottom)).astype(np.float32)
+
+
+def aliased_pixels(naive, reference, tolerance=PERCEPTIBLE):
+    """The ground truth of aliasing: where the naive refocus differs perceptibly from the dense aperture.
+
+    Parameters
+    ----------
+    naive : array_like, shape (Y, X, C)
+        The sparse refocus (:func:`napari_lfalias.refocus`).
+    reference : array_like, shape (Y, X, C)
+        What a dense aperture records (a synthetic scene's
+        ``reference(slope)``, or the refocus of all views of a real array
+        when ``naive`` uses a sub-grid spanning the same aperture).
+    tolerance : float
+        Relative luminance difference that counts (after a 1 px blur).
+
+    Returns
+    -------
+    ndarray, shape (Y, X), bool
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = np.full((8, 8, 3), 0.5, np.float32)
+    >>> int(aliased_pixels(ref * 1.05, ref).sum()), int(aliased_pixels(ref * 1.01, ref).sum())
+    (64, 0)
+    """
+    return luminance_difference(naive, reference) > tolerance

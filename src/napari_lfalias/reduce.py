@@ -61,6 +61,7 @@ from .detect import DARK_FLOOR, AliasingDetector
 from .errors import ParameterError
 from .in_focus import in_focus_layer
 from .poisson import _labels, fuse_gradients
+from .presets import resolve
 from .pyramid import level_shape, pyr_down, pyr_up
 
 __all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels", "levels_from_disparity", "SOLVERS", "SCREEN", "MAX_LEVEL"]
@@ -313,9 +314,36 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
             for level, rendering in renderings.items()}
 
 
-def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_level=3, method="analytic",
+def _reduce_depth_guided(detector, slope, threshold):
+    """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`).
+
+    Yields ``(done, 4)`` after the disparity, the rendering, the detection
+    and the blend; returns the :class:`Reduction` (``level`` holds the
+    pyramid level equivalent to each replaced pixel's blur).
+    """
+    from .baselines import view_spacing
+    from .refocus import refocus
+
+    slope = _validate.finite_float("slope", slope)
+    guide = detector.guide
+    disparity, _ = guide.estimate
+    yield (1, 4)
+    rendering = guide.rendering(slope)
+    refocused = refocus(detector.lf, slope)
+    yield (2, 4)
+    detection = detector.detect(slope, threshold=threshold, method="depth")
+    yield (3, 4)
+    image = guide.blend(refocused, rendering.image, detection.mask)
+    level = np.where(detection.mask, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
+                                                           MAX_LEVEL), 0).astype(np.uint8)
+    level[detection.mask & (level == 0)] = 1
+    yield (4, 4)
+    return Reduction(image, level, detection.cv, refocused, [detection])
+
+
+def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,
                     seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
-                    solver="auto", screen=SCREEN, keep_in_focus=False, detector=None):
+                    solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None, preset=None):
     """Refocus ``lf`` at ``slope`` with angular aliasing reduced (Algorithm 2).
 
     Parameters
@@ -368,7 +396,8 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
     """
     steps = iter_reduce_aliasing(lf, slope, gamma, n_patterns, threshold, max_level, method, seed,
                                  threshold_scale=threshold_scale, luminance=luminance, dark_floor=dark_floor,
-                                 solver=solver, screen=screen, keep_in_focus=keep_in_focus, detector=detector)
+                                 solver=solver, screen=screen, keep_in_focus=keep_in_focus, detector=detector,
+                                 disparity=disparity, preset=preset)
     while True:
         try:
             next(steps)
@@ -376,9 +405,10 @@ def reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_le
             return done.value
 
 
-def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, max_level=3, method="analytic",
+def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,
                          seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
-                         solver="auto", screen=SCREEN, keep_in_focus=False, detector=None):
+                         solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None,
+                         preset=None):
     """:func:`reduce_aliasing` step by step: a generator for progress reports and cancellation.
 
     Yields ``(done, total)`` after each stage (the detection of every
@@ -407,14 +437,21 @@ def iter_reduce_aliasing(lf, slope, gamma=0.2, n_patterns=100, threshold=0.02, m
     """
     from .refocus import refocus
 
+    chosen = resolve(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns,
+                     max_level=max_level, screen=screen)
+    method, threshold = chosen["method"], chosen["threshold"]
+    max_level = 3 if chosen["max_level"] is None else chosen["max_level"]
+    screen = SCREEN if chosen["screen"] is None else chosen["screen"]
     max_level, screen = _check(max_level, solver, screen, keep_in_focus)
     if detector is None:
-        detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor)
+        detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, disparity=disparity)
     elif not isinstance(detector, AliasingDetector) or detector.source is not lf:
         raise ParameterError("detector must be an AliasingDetector made for this light field (lf)")
     lf = detector.lf
-    options = dict(gamma=gamma, n_patterns=n_patterns, threshold=threshold, method=method, seed=seed,
-                   threshold_scale=threshold_scale)
+    if method == "depth":
+        return (yield from _reduce_depth_guided(detector, slope, threshold))
+    options = dict(gamma=chosen["gamma"], n_patterns=chosen["n_patterns"], threshold=threshold, method=method,
+                   seed=seed, threshold_scale=threshold_scale)
     total = max_level + 3  # level 0, levels 1 .. max_level, renderings, fusion
     first = detector.detect(slope, **options)
     refocused = refocus(lf, slope)

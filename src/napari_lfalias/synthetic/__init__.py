@@ -7,9 +7,9 @@
 """
 
 from .lenslet import LensletCapture, SceneRadiance, render_lenslet
-from .scenes import Plane, SyntheticScene, brick_room, textured_plane, textureless_plane
+from .scenes import TEXTURES, Plane, SyntheticScene, brick_room, layered_scene, textured_plane, textureless_plane
 
 __all__ = [
-    "Plane", "SyntheticScene", "brick_room", "textured_plane", "textureless_plane",
+    "Plane", "SyntheticScene", "brick_room", "textured_plane", "textureless_plane", "layered_scene", "TEXTURES",
     "LensletCapture", "SceneRadiance", "render_lenslet",
 ]

@@ -50,7 +50,7 @@ from .. import _validate
 from ..errors import ParameterError
 from ..lightfield import LightField, regular_positions
 
-__all__ = ["Plane", "SyntheticScene", "brick_room", "textureless_plane", "textured_plane"]
+__all__ = ["Plane", "SyntheticScene", "brick_room", "textureless_plane", "textured_plane", "layered_scene", "TEXTURES"]
 
 #: Low-pass cut-offs (cycles per pixel) of texture and mask factors; their
 #: sum stays below Nyquist, so a masked texture is still band-limited.
@@ -164,6 +164,106 @@ def _constant_texture(period, colour):
     colour = np.asarray(colour, np.float64)
     x = np.broadcast_to(colour[None, :, None], (1, 3, period))
     return _Factors.from_samples(np.ones((1, period)), x, TEXTURE_CUTOFF)
+
+
+def _scaled(y, x, mean, contrast, rng_colour):
+    """Factors ``y (K, P)``, ``x (K, C, P)`` scaled to zero-mean unit-spread, with ``contrast`` and a
+    constant term of colour ``mean``: the texture ``mean + contrast * sum_k y_k x_k``."""
+    values = np.einsum("kp,kcq->pqc", y[:, :64], x[:, :, :64])
+    spread = float(values.std()) or 1.0
+    period = y.shape[-1]
+    y = np.concatenate([np.ones((1, period)), y * (contrast / spread)])
+    x = np.concatenate([np.broadcast_to(np.asarray(mean, np.float64)[None, :, None], (1, 3, period)), x])
+    if rng_colour is not None:  # a random tint per term
+        x[1:] *= rng_colour[:, :, None]
+    return y, x
+
+
+def _noise_texture(rng, period, cutoff, contrast=0.1, rank=12, colour=True):
+    """Band-limited random texture (a sum of ``rank`` random separable products), about
+    ``mean +- contrast`` (one standard deviation); ``cutoff`` (cycles/px) from smooth (0.03) to near-Nyquist (0.45)."""
+    y = rng.normal(size=(rank, period))
+    x = rng.normal(size=(rank, 1, period)).repeat(3, axis=1)
+    tint = rng.uniform(0.7, 1.3, size=(rank, 3)) if colour else None
+    # low-pass before scaling, so the contrast is that of the band-limited texture
+    y = scipy.fft.irfft(_lowpass(y, cutoff), n=period, axis=-1)
+    x = scipy.fft.irfft(_lowpass(x, cutoff), n=period, axis=-1)
+    mean = rng.uniform(0.3, 0.6, size=3) if colour else np.full(3, 0.45)
+    y, x = _scaled(y, x, mean, contrast, tint)
+    return _Factors.from_samples(y, x, min(cutoff * 1.05, 0.499))
+
+
+def _grating_texture(rng, period, frequency, angle, contrast=0.25):
+    """A sinusoidal grating of ``frequency`` cycles/px at ``angle`` radians (rank 2: cos(a + b)),
+    on the texture's period (the nearest whole number of cycles)."""
+    t = np.arange(period)
+    cycles_y = round(frequency * np.sin(angle) * period)
+    cycles_x = round(frequency * np.cos(angle) * period)
+    phase = rng.uniform(0, 2 * np.pi)
+    ay, ax = 2 * np.pi * cycles_y * t / period, 2 * np.pi * cycles_x * t / period + phase
+    y = np.stack([np.cos(ay), -np.sin(ay)])
+    x = np.stack([np.cos(ax), np.sin(ax)])[:, None, :].repeat(3, axis=1)
+    mean = rng.uniform(0.35, 0.55, size=3)
+    y, x = _scaled(y, x, mean, contrast, None)
+    return _Factors.from_samples(y, x, 0.499)
+
+
+def _checker_texture(rng, period, seam, cell, contrast=0.3):
+    """A checkerboard of ``cell`` px squares (a product of two square waves), band-limited; the
+    squares start at ``seam`` (outside every view), where the period may cut one short."""
+    t = (np.arange(period) - seam) % period
+    wave = np.where((t // cell) % 2 == 0, 1.0, -1.0)
+    mean = rng.uniform(0.35, 0.55, size=3)
+    y, x = _scaled(wave[None], wave[None, None].repeat(3, axis=1), mean, contrast, None)
+    return _Factors.from_samples(y, x, TEXTURE_CUTOFF)
+
+
+def _tiles_texture(rng, period, seam, tile):
+    """Square tiles of ``tile`` px of random colours over the whole period (high contrast, like the
+    brick room's cube), starting at ``seam``."""
+    edges = list(range(seam, seam + period, tile)) + [seam + period]
+    spans = [(a % period, (a % period) + (b - a)) for a, b in zip(edges[:-1], edges[1:])]
+    indicator = _indicator(period, spans)
+    colours = rng.uniform(0.15, 0.85, size=(len(spans), len(spans), 3))
+    cols = np.einsum("itc,tx->icx", colours, indicator)
+    return _Factors.from_samples(indicator, cols, TEXTURE_CUTOFF)
+
+
+def _lines_texture(rng, period, seam, spacing=(8, 28), width=(1.5, 3.5)):
+    """Thin dark and light lines, horizontal and vertical, at random spacings (a grid of lines like
+    mortar, window frames or text strokes: what angular aliasing shows most), on a random background."""
+    t = np.arange(period, dtype=np.float64)
+
+    def lines():
+        positions = np.cumsum(rng.uniform(*spacing, size=period // spacing[0] + 2)) + seam
+        profile = np.zeros(period)
+        for centre in positions:
+            half = rng.uniform(*width) / 2
+            distance = np.abs((t - centre + period / 2) % period - period / 2)
+            profile += rng.choice([-1.0, 1.0]) * (distance <= half)
+        return profile
+
+    background = rng.uniform(0.3, 0.6, size=3)
+    tint = rng.uniform(0.6, 1.0, size=(2, 3))
+    y = np.stack([np.ones(period), lines(), np.ones(period)])
+    x = np.stack([np.broadcast_to(background[:, None], (3, period)),
+                  0.25 * tint[0][:, None] * np.ones(period), 0.25 * tint[1][:, None] * lines()[None, :]])
+    return _Factors.from_samples(y, x, TEXTURE_CUTOFF)
+
+
+#: The texture kinds of :func:`layered_scene`: name -> maker ``(rng, period, seam) -> _Factors``.
+TEXTURES = {
+    "smooth": lambda rng, period, seam: _noise_texture(rng, period, 0.03, contrast=0.15),
+    "noise": lambda rng, period, seam: _noise_texture(rng, period, 0.25, contrast=0.2),
+    "fine": lambda rng, period, seam: _noise_texture(rng, period, 0.45, contrast=0.15),
+    "grey": lambda rng, period, seam: _noise_texture(rng, period, 0.2, contrast=0.2, colour=False),
+    "tiles": lambda rng, period, seam: _tiles_texture(rng, period, seam, int(rng.integers(6, 16))),
+    "lines": _lines_texture,
+    "stripes": lambda rng, period, seam: _grating_texture(rng, period, rng.uniform(0.05, 0.3), rng.uniform(0, np.pi)),
+    "checker": lambda rng, period, seam: _checker_texture(rng, period, seam, int(rng.integers(3, 7))),
+    "bricks": _brick_texture,
+    "flat": lambda rng, period, seam: _constant_texture(period, rng.uniform(0.25, 0.65, size=3)),
+}
 
 
 def _box_mask(period, box):
@@ -569,3 +669,57 @@ def textured_plane(n_views=8, size=512, seed=0, disparity=1.0):
     period, seam = _period(size, n_views, (disparity,))
     plane = Plane("plane", disparity, _brick_texture(rng, period, seam))
     return SyntheticScene([plane], n_views, size, name="textured plane")
+
+
+def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene"):
+    """A scene of fronto-parallel layers with textures of several kinds, front to back.
+
+    Parameters
+    ----------
+    layers : sequence of (float, str, tuple or None)
+        ``(disparity, texture, box)`` per layer, front to back: ``texture``
+        one of :data:`TEXTURES` (smooth, noise, fine, grey, tiles, lines,
+        stripes, checker, bricks, flat); ``box`` the layer's rectangle ``(y0, y1, x0, x1)`` as
+        fractions of the view, or ``None`` for an opaque layer covering the
+        view (the last layer usually is one).
+    n_views, size, seed
+        As in :func:`brick_room`.
+    name : str
+        Stored in the light field's metadata.
+
+    Returns
+    -------
+    SyntheticScene
+        Layer ``k`` is named ``"layer{k}"`` in ``layers_disparity``.
+
+    Examples
+    --------
+    >>> scene = layered_scene([(3.0, "checker", (0.3, 0.7, 0.2, 0.6)), (-1.0, "noise", None)], n_views=3, size=32)
+    >>> scene.lightfield.shape, sorted(scene.layers_disparity.values())
+    ((3, 3, 32, 32, 3), [-1.0, 3.0])
+    """
+    n_views, size, rng = _check(n_views, size, seed)
+    specs = list(layers)
+    if not specs:
+        raise ParameterError("layers must hold at least one (disparity, texture, box) entry")
+    disparities = []
+    for k, spec in enumerate(specs):
+        try:
+            disparity, texture, box = spec
+        except (TypeError, ValueError):
+            raise ParameterError(f"layers[{k}] must be (disparity, texture, box), got {spec!r}") from None
+        disparities.append(_validate.finite_float(f"layers[{k}] disparity", disparity))
+        _validate.one_of(f"layers[{k}] texture", texture, tuple(TEXTURES))
+    period, seam = _period(size, n_views, disparities)
+    planes = []
+    for k, (disparity, texture, box) in enumerate(specs):
+        colour = TEXTURES[texture](rng, period, seam)
+        alpha = None
+        if box is not None:
+            y0, y1, x0, x1 = (float(v) for v in box)
+            if not (0 <= y0 < y1 <= 1 and 0 <= x0 < x1 <= 1):
+                raise ParameterError(f"layers[{k}] box must be fractions 0 <= y0 < y1 <= 1, 0 <= x0 < x1 <= 1, "
+                                     f"got {box!r}")
+            alpha = _box_mask(period, (round(y0 * size), round(y1 * size), round(x0 * size), round(x1 * size)))
+        planes.append(Plane(f"layer{k}", disparities[k], colour, alpha))
+    return SyntheticScene(planes, n_views, size, name=name)

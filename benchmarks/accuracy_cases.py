@@ -1,0 +1,125 @@
+"""The cases of the accuracy benchmark: light fields that look like users' data, with ground truth.
+
+Every case is a light field, the slopes to judge it at, a way to make the
+dense-aperture reference of each slope, and (where known) the true
+disparity. Cases are split:
+
+- ``"tune"``: the cases defaults may be chosen on;
+- ``"holdout"``: the cases reported as unseen (never used to choose anything);
+- ``"real"``: real arrays by the sub-grid protocol (holdout too).
+
+Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
+rendered exactly; the reference integrates the continuous aperture with
+the same bilinear interpolation as the refocus, so only the angular
+sampling differs. Camera effects (:func:`napari_lfalias.synthetic.camera.capture`)
+are applied to the views the methods see, never to the reference, and the
+truth of aliasing is judged on the ideal views (``Case.ideal``): sensor
+noise, clipping and demosaicing errors are not angular aliasing.
+
+Real: HCI antinous (9x9 views) by the sub-grid protocol: a sparse sub-grid
+that spans the same aperture (rows/columns 1, 4, 7; or 0, 2, 4, 6, 8),
+judged against the refocus of all 81 views at the same slope, at slopes
+across the scene's depth range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+import napari_lfalias as lfa
+from napari_lfalias.synthetic import brick_room, layered_scene, textureless_plane
+from napari_lfalias.synthetic.camera import capture
+
+HCI = Path(__file__).resolve().parents[2] / "shared" / "lf_data" / "hci_antinous"
+
+
+@dataclass
+class Case:
+    """One light field of the benchmark."""
+
+    name: str
+    split: str
+    lightfield: object
+    slopes: list
+    reference: Callable  # slope -> (Y, X, C) reference image
+    disparity: np.ndarray | None = None
+    notes: str = ""
+    ideal: object = None  # the views without camera effects: the truth of aliasing is judged on them
+    extra: dict = field(default_factory=dict)
+
+
+def _synthetic(name, split, scene, slopes, notes="", **camera):
+    """A case from a synthetic scene, optionally seen through a camera (``capture`` options)."""
+    ideal = scene.lightfield
+    lf = capture(ideal, **camera) if camera else ideal
+    lf = lfa.LightField(lf.data, lf.positions, {"source": name}, weights=lf.weights)  # no ground truth in meta
+    return Case(name, split, lf, list(slopes), lambda s: scene.reference(s, interpolation="bilinear"),
+                scene.disparity, notes, ideal=ideal)
+
+
+def synthetic_cases(size=256):
+    """The synthetic cases, tune and holdout (see the module notes)."""
+    cases = []
+    # -- chosen on --------------------------------------------------------------------------
+    scene = layered_scene([(3.0, "noise", (0.25, 0.65, 0.2, 0.55)), (0.5, "stripes", (0.45, 0.85, 0.5, 0.9)),
+                           (-2.0, "bricks", None)], n_views=8, size=size, seed=1, name="three layers")
+    cases.append(_synthetic("three layers, 8x8", "tune", scene, [3.0, 0.5, -2.0],
+                            "noise occluder, stripes mid-plane, bricks wall"))
+    scene = layered_scene([(2.0, "checker", (0.3, 0.75, 0.25, 0.7)), (-1.5, "fine", None)], n_views=5,
+                          size=size, seed=2, name="checker before fine noise")
+    cases.append(_synthetic("checker over fine noise, 5x5, vignetted + noise", "tune", scene, [2.0, -1.5, 0.25],
+                            "calibrated vignetting (decoder with a white image), read + shot noise",
+                            vignetting=1.0, read_noise=0.004, shot_noise=0.01, calibrated=True, seed=2))
+    scene = layered_scene([(1.5, "smooth", (0.2, 0.7, 0.3, 0.8)), (-0.8, "noise", None)], n_views=9,
+                          size=size, seed=3, name="smooth before noise")
+    cases.append(_synthetic("smooth over noise, 9x9", "tune", scene, [1.5, -0.8], "mild disparities, dense grid"))
+    scene = layered_scene([(4.0, "grey", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3,
+                          size=size, seed=4, name="sparse 3x3")
+    cases.append(_synthetic("grey noise over checker, 3x3", "tune", scene, [4.0, -3.0], "very sparse views"))
+    # -- holdout: never used to choose -------------------------------------------------------
+    scene = brick_room(n_views=8, size=size, seed=0)
+    cases.append(_synthetic("brick room (paper Fig. 6), 8x8", "holdout", scene, [4.0, -4.0],
+                            "the paper's scene: tiles before a brick wall"))
+    scene = layered_scene([(2.5, "stripes", (0.15, 0.5, 0.15, 0.55)), (1.0, "checker", (0.45, 0.85, 0.4, 0.85)),
+                           (-1.5, "noise", None)], n_views=7, size=size, seed=11, name="stripes, checker, noise")
+    cases.append(_synthetic("three layers, 7x7, Bayer + vignetted + noise", "holdout", scene, [2.5, 1.0, -1.5],
+                            "RGGB mosaic demosaiced, calibrated vignetting, noise",
+                            vignetting=0.8, bayer=True, read_noise=0.003, shot_noise=0.008, calibrated=True, seed=11))
+    scene = layered_scene([(3.0, "fine", (0.25, 0.75, 0.35, 0.75)), (-1.0, "smooth", None)], n_views=6,
+                          size=size, seed=12, name="fine before smooth")
+    cases.append(_synthetic("fine over smooth, 6x6, saturated + noise", "holdout", scene, [3.0, -1.0],
+                            "exposure 1.5: bright parts clipped; noise",
+                            exposure=1.5, read_noise=0.003, shot_noise=0.01, seed=12))
+    scene = textureless_plane(n_views=8, size=size, seed=13)
+    cases.append(_synthetic("textureless wall + object, 8x8", "holdout", scene, [2.0, 0.0],
+                            "large flat wall: nothing to alias there"))
+    scene = layered_scene([(-2.5, "bricks", (0.3, 0.7, 0.2, 0.6)), (1.5, "noise", None)], n_views=4,
+                          size=size, seed=14, name="smaller disparity in front")
+    cases.append(_synthetic("bricks over noise, 4x4, smaller disparity in front", "holdout", scene, [-2.5, 1.5],
+                            "occlusion order reversed (larger disparity behind)"))
+    return cases
+
+
+def hci_cases():
+    """HCI antinous by the sub-grid protocol (skipped when the data are not there)."""
+    if not HCI.exists():
+        return []
+    full = lfa.load(HCI)
+    truth = full.meta["disparity"]
+    slopes = [float(np.percentile(truth, q)) for q in (10, 50, 90)]
+    cases = []
+    for keep in ((1, 4, 7), (0, 2, 4, 6, 8)):
+        sparse = full.subset(list(keep), list(keep))
+        sparse = lfa.LightField(sparse.data, sparse.positions, {"source": "hci_antinous sub-grid"})
+        cases.append(Case(f"HCI antinous, {len(keep)}x{len(keep)} of 9x9 (rows/cols {','.join(map(str, keep))})",
+                          "real", sparse, slopes, lambda s, full=full: lfa.refocus(full, s), truth,
+                          "reference: the refocus of all 81 views"))
+    return cases
+
+
+def all_cases(size=256):
+    return synthetic_cases(size) + hci_cases()

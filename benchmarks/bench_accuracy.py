@@ -1,0 +1,177 @@
+"""Accuracy of aliasing detection and reduction on data that looks like users' data.
+
+For every case of :mod:`accuracy_cases` (layered synthetic scenes with
+several kinds of texture, camera effects, and real HCI sub-grids) and every
+slope: the ground truth of aliasing is where the naive refocus differs from
+the dense-aperture reference by more than 2 % relative luminance after a
+1 px blur (:func:`napari_lfalias.metrics.aliased_pixels`). Each method's
+image is scored by PSNR and SSIM over the image, the aliased and the clean
+pixels; each detector by ROC AUC of its score and F1 of its mask; and the
+time of each is measured.
+
+Methods:
+
+- ``naive``: :func:`napari_lfalias.refocus`;
+- ``default``: :func:`napari_lfalias.reduce_aliasing` at its defaults
+  (disparity-guided, ``method="depth"``);
+- ``paper``: ``reduce_aliasing(preset="paper")`` (Algorithm 1 Monte Carlo,
+  T = 0.02, Algorithm 2 as published);
+- ``analytic T=...``: the exact Cv with Algorithm 2 at a lower threshold;
+- ``rendering, true disparity``: the dense-aperture renderer given the
+  ground-truth disparity everywhere (the ceiling of the renderer).
+
+Run::
+
+    .venv/bin/python benchmarks/bench_accuracy.py --out benchmarks/results/accuracy.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import napari_lfalias as lfa
+from napari_lfalias import metrics
+from napari_lfalias.render import render_dense_aperture
+
+from _harness import table, write_report
+from accuracy_cases import all_cases
+
+ANALYTIC_T = 0.005
+
+
+def _timed(func):
+    start = time.perf_counter()
+    value = func()
+    return value, time.perf_counter() - start
+
+
+def _scores(image, reference, regions):
+    out = {}
+    for key, mask in regions.items():
+        out[f"psnr {key}"] = out[f"ssim {key}"] = float("nan")
+        if mask is None or mask.any():
+            out[f"psnr {key}"] = metrics.psnr(image, reference, mask=mask)
+            try:
+                out[f"ssim {key}"] = metrics.ssim(image, reference, mask=mask)
+            except lfa.ParameterError:  # the region lies within the SSIM window of the border
+                pass
+    return out
+
+
+def _detection(score, mask, truth):
+    out = {"auc": float("nan"), "f1": metrics.precision_recall_f1(mask, truth).f1}
+    if truth.any() and (~truth).any():
+        out["auc"] = metrics.roc_auc(score, truth)
+    return out
+
+
+def evaluate(case, slope, images_dir=None):
+    """All methods on one (case, slope); returns rows of numbers."""
+    lf = case.lightfield
+    reference = case.reference(slope).astype(np.float32)
+    naive = lfa.refocus(lf, slope)
+    ideal = naive if case.ideal is None else lfa.refocus(case.ideal, slope)
+    truth = metrics.aliased_pixels(ideal, reference)
+    regions = {"all": None, "aliased": truth, "clean": ~truth}
+    results = {}
+    # the disparity is estimated once per light field; its time is reported apart
+    if "estimate" not in case.extra:
+        case.extra["estimate"], case.extra["estimate_s"] = _timed(lambda: lfa.estimate_disparity(lf))
+    res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, disparity=case.extra["estimate"]))
+    results["default"] = (res.image, seconds, res.cv, res.level > 0)
+    res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, preset="paper", seed=0))
+    results["paper"] = (res.image, seconds, res.cv, res.detections[0].mask)
+    res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, method="analytic", threshold=ANALYTIC_T))
+    results[f"analytic T={ANALYTIC_T}"] = (res.image, seconds, res.cv, res.detections[0].mask)
+    if case.disparity is not None:
+        rendering, seconds = _timed(lambda: render_dense_aperture(lf, slope, case.disparity.astype(np.float64)))
+        results["rendering, true disparity"] = (rendering.image, seconds, None, None)
+    rows = []
+    naive_scores = _scores(naive, reference, regions)
+    rows.append({"method": "naive", **naive_scores, "seconds": 0.0, "auc": float("nan"), "f1": float("nan")})
+    for name, (image, seconds, score, mask) in results.items():
+        row = {"method": name, **_scores(image, reference, regions), "seconds": seconds}
+        row.update(_detection(score, mask, truth) if score is not None else {"auc": float("nan"), "f1": float("nan")})
+        rows.append(row)
+    if images_dir is not None:
+        _save_images(images_dir, case, slope, naive, results["default"][0], reference, truth,
+                     results["default"][3], case.extra["estimate"].disparity)
+    return rows, float(truth.mean())
+
+
+def _save_images(folder, case, slope, naive, ours, reference, truth, mask, disparity):
+    import imageio.v3 as iio
+
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def grey(x):
+        return np.repeat(np.clip(x, 0, 1)[..., None], 3, axis=-1)
+
+    lo, hi = np.percentile(disparity, [1, 99])
+    masks = np.stack([truth & ~mask, truth & mask, mask & ~truth], axis=-1).astype(np.float32)  # red missed, green found, blue extra
+    top = np.concatenate([naive, ours, reference], axis=1)
+    bottom = np.concatenate([masks, grey((disparity - lo) / max(hi - lo, 1e-6)),
+                             grey(np.abs(ours - reference).max(-1) * 10)], axis=1)
+    image = np.clip(np.concatenate([top, bottom], axis=0), 0, 1)
+    name = "".join(c if c.isalnum() else "_" for c in f"{case.name}_{slope:+.2f}")[:80]
+    path = folder / f"{name}.png"
+    iio.imwrite(path, (image * 255).round().astype(np.uint8))
+    return path
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
+    parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
+    parser.add_argument("--split", default=None, help="only this split (tune, holdout, real)")
+    args = parser.parse_args(argv)
+    images_dir = None if args.out is None else args.out.parent / "accuracy"
+    sections = []
+    summary = {}
+    for case in all_cases(args.size):
+        if args.split and case.split != args.split:
+            continue
+        lines = [f"### {case.name} ({case.split})", "", case.notes, ""]
+        for slope in case.slopes:
+            rows, share = evaluate(case, slope, images_dir)
+            header = ["method", "PSNR all", "PSNR aliased", "PSNR clean", "SSIM all", "SSIM aliased", "SSIM clean",
+                      "AUC", "F1", "s"]
+            body = [[r["method"]] + [f"{r[k]:.2f}" for k in ("psnr all", "psnr aliased", "psnr clean", "ssim all",
+                                                             "ssim aliased", "ssim clean", "auc", "f1", "seconds")]
+                    for r in rows]
+            lines += [f"slope {slope:+.2f}: {share:.1%} aliased", "", table(header, body), ""]
+            naive = rows[0]
+            for r in rows[1:]:
+                summary.setdefault((case.split, r["method"]), []).append(
+                    {k: r[k] - naive[k] for k in ("psnr all", "psnr aliased", "psnr clean")}
+                    | {"auc": r["auc"], "f1": r["f1"]})
+            print(case.name, slope, " | ".join(f"{r['method']}: {r['psnr all'] - naive['psnr all']:+.2f} "
+                                                f"al {r['psnr aliased'] - naive['psnr aliased']:+.2f} "
+                                                f"cl {r['psnr clean'] - naive['psnr clean']:+.2f} "
+                                                f"auc {r['auc']:.2f} f1 {r['f1']:.2f}" for r in rows[1:]), flush=True)
+        if "estimate_s" in case.extra:
+            lines += [f"disparity estimated in {case.extra['estimate_s']:.2f} s", ""]
+        sections.append("\n".join(lines))
+    head = ["split", "method", "cases", "min dPSNR all", "min dPSNR clean", "mean dPSNR aliased", "min dPSNR aliased",
+            "mean AUC", "mean F1", "min F1"]
+    rows = []
+    for (split, method), items in summary.items():
+        def col(key, fn):
+            values = np.array([i[key] for i in items], float)
+            values = values[np.isfinite(values)]
+            return f"{fn(values):+.2f}" if values.size else "-"
+        rows.append([split, method, str(len(items)), col("psnr all", np.min), col("psnr clean", np.min),
+                     col("psnr aliased", np.mean), col("psnr aliased", np.min), col("auc", np.mean),
+                     col("f1", np.mean), col("f1", np.min)])
+    summary_md = "## Summary (differences against the naive refocus, dB)\n\n" + table(head, rows)
+    print(summary_md)
+    if args.out is not None:
+        write_report(args.out, "Accuracy of aliasing detection and reduction", [summary_md] + sections)
+
+
+if __name__ == "__main__":
+    main()

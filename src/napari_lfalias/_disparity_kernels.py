@@ -1,0 +1,305 @@
+"""Numba kernels of the disparity estimator (:mod:`napari_lfalias.disparity`).
+
+``sweep_costs`` is the plane sweep: for each (slope, image row segment)
+work item, every view's feature planes are resampled bilinearly at
+``p + slope * q_i`` (one vectorisable loop per view and channel), compared
+with the reference (the mean of the central views at the same slope), and
+the squared differences are summed per view group. The cost of a pixel is
+the smallest group mean (occlusion-aware: a half of the aperture that does
+not see an occluder wins).
+
+``wls_rows`` solves the one-dimensional weighted-least-squares systems of
+the fast global smoother (Min et al. 2014) along every row: tridiagonal,
+solved by the Thomas algorithm, rows in parallel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["sweep_costs", "wls_rows", "box_mean_stack"]
+
+
+@njit(cache=True, inline="always")
+def _taps(shift, n):
+    """Integer part, fraction (snapped to 0 near whole pixels) and the output range ``[lo, hi)``
+    of a shift along an axis of length ``n`` whose taps all lie inside."""
+    base = int(np.floor(shift))
+    frac = shift - base
+    if frac > 1.0 - 1e-6:
+        base += 1
+        frac = 0.0
+    elif frac < 1e-6:
+        frac = 0.0
+    lo = max(0, -base)
+    hi = min(n, n - base - (1 if frac > 0.0 else 0))
+    return base, frac, lo, max(hi, lo)
+
+
+@njit(cache=True, inline="always")
+def _add_view(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, weight, sums, count):
+    """Add ``weight`` x the bilinear samples of view ``i`` to ``sums (rows, K, width)`` and its validity to
+    ``count (rows, width)``, for tile rows ``y0 .. y1`` and columns ``x_lo .. x_hi`` (absolute)."""
+    n_feat = features.shape[1]
+    a = np.float32((1.0 - fy) * (1.0 - fx)) * weight
+    b = np.float32((1.0 - fy) * fx) * weight
+    c = np.float32(fy * (1.0 - fx)) * weight
+    d = np.float32(fy * fx) * weight
+    step_y = 1 if fy > 0.0 else 0
+    step_x = 1 if fx > 0.0 else 0
+    width = x_hi - x_lo
+    seen = np.ones(width, np.float32)
+    for y in range(y0, y1):
+        r0 = y + by
+        r = y - y0
+        if has_valid:
+            v0 = valid[i, r0, x_lo + bx:x_hi + bx + step_x]
+            v1 = valid[i, r0 + step_y, x_lo + bx:x_hi + bx + step_x]
+            for x in range(width):
+                seen[x] = min(min(v0[x], v0[x + step_x]), min(v1[x], v1[x + step_x]))
+        for k in range(n_feat):
+            row0 = features[i, k, r0, x_lo + bx:x_hi + bx + step_x]
+            row1 = features[i, k, r0 + step_y, x_lo + bx:x_hi + bx + step_x]
+            out = sums[r, k, x_lo - x0:x_hi - x0]
+            for x in range(width):
+                out[x] += seen[x] * (a * row0[x] + b * row0[x + step_x] + c * row1[x] + d * row1[x + step_x])
+        out_c = count[r, x_lo - x0:x_hi - x0]
+        if has_valid:
+            v0 = valid[i, r0, x_lo + bx:x_hi + bx + step_x]
+            v1 = valid[i, r0 + step_y, x_lo + bx:x_hi + bx + step_x]
+            for x in range(width):
+                out_c[x] += weight * min(min(v0[x], v0[x + step_x]), min(v1[x], v1[x + step_x]))
+        else:
+            for x in range(width):
+                out_c[x] += weight
+
+
+@njit(cache=True, inline="always")
+def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, ty0, ref, ref_count,
+                groups, acc, cnt):
+    """Squared feature differences of view ``i``'s samples to ``ref``, added to the groups ``groups`` of
+    ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns ``x_lo .. x_hi``."""
+    n_feat = features.shape[1]
+    a = np.float32((1.0 - fy) * (1.0 - fx))
+    b = np.float32((1.0 - fy) * fx)
+    c = np.float32(fy * (1.0 - fx))
+    d = np.float32(fy * fx)
+    step_y = 1 if fy > 0.0 else 0
+    step_x = 1 if fx > 0.0 else 0
+    width = x_hi - x_lo
+    err = np.zeros(width, np.float32)
+    keep = np.empty(width, np.float32)
+    for y in range(y0, y1):
+        r0 = y + by
+        r = y - ty0
+        rc = ref_count[r, x_lo - x0:x_hi - x0]
+        for x in range(width):
+            keep[x] = np.float32(1.0) if rc[x] > 0.0 else np.float32(0.0)
+            err[x] = 0.0
+        if has_valid:  # a sample counts by its weight (the least of its taps')
+            v0 = valid[i, r0, x_lo + bx:x_hi + bx + step_x]
+            v1 = valid[i, r0 + step_y, x_lo + bx:x_hi + bx + step_x]
+            for x in range(width):
+                keep[x] *= min(min(v0[x], v0[x + step_x]), min(v1[x], v1[x + step_x]))
+        for k in range(n_feat):
+            row0 = features[i, k, r0, x_lo + bx:x_hi + bx + step_x]
+            row1 = features[i, k, r0 + step_y, x_lo + bx:x_hi + bx + step_x]
+            rk = ref[r, k, x_lo - x0:x_hi - x0]
+            for x in range(width):
+                diff = a * row0[x] + b * row0[x + step_x] + c * row1[x] + d * row1[x + step_x] - rk[x]
+                err[x] += diff * diff
+        for g in groups:
+            acc_g = acc[g, r, x_lo - x0:x_hi - x0]
+            cnt_g = cnt[g, r, x_lo - x0:x_hi - x0]
+            for x in range(width):
+                acc_g[x] += err[x] * keep[x]
+                cnt_g[x] += keep[x]
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
+                out):
+    """Occlusion-aware matching cost of every tile at each of its slopes.
+
+    Tile-major: a tile's views are read into the cache once and all its
+    slopes are computed from there (a slope-major sweep would stream the
+    whole light field from memory once per slope). Along a tile row the
+    taps are shifted slices, so the inner loops vectorise.
+
+    Parameters
+    ----------
+    features : (n, K, Y, X) float32
+        Feature planes of every view.
+    valid : (n, Y, X) float32
+        Weight of every sample in [0, 1] (0: not observed); ignored unless ``has_valid``.
+    positions : (n, 2) float64
+    slopes : (m,) float64
+        Slopes in units of this level's pixels.
+    ref_views : (r,) int64
+        Views averaged into the reference (the central ones).
+    member : (n, G) bool
+        Group membership of every view.
+    min_count : (G,) float32
+        Fewest valid views a group needs to count.
+    tiles : (T, 4) int64
+        ``(y0, y1, x0, x1)`` of every tile.
+    first : (T + 1,) int64, order : (S,) int64
+        Tile ``t`` needs the slopes ``order[first[t]:first[t + 1]]``.
+    out : (m, Y, X) float32
+        Smallest group's weighted mean of the squared feature differences
+        to the (weighted) reference; left as it is where a tile does not
+        need a slope; ``inf`` where no group has enough weight. A sample
+        counts where its four taps lie inside the view, with the least
+        weight of its taps.
+    """
+    n, n_feat, n_rows, n_cols = features.shape
+    n_groups = member.shape[1]
+    view_groups = [np.flatnonzero(member[i]) for i in range(n)]
+    for t in prange(tiles.shape[0]):
+        y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
+        height, width = y1 - y0, x1 - x0
+        ref = np.empty((height, n_feat, width), np.float32)
+        ref_count = np.empty((height, width), np.float32)
+        acc = np.empty((n_groups, height, width), np.float32)
+        cnt = np.empty((n_groups, height, width), np.float32)
+        for idx in range(first[t], first[t + 1]):
+            j = order[idx]
+            s = slopes[j]
+            ref[:] = 0.0
+            ref_count[:] = 0.0
+            acc[:] = 0.0
+            cnt[:] = 0.0
+            for u in range(ref_views.shape[0]):
+                i = ref_views[u]
+                by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
+                bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
+                ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
+                if yb > ya and xb > xa:
+                    _add_view(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0,
+                              np.float32(1.0), ref[ya - y0:], ref_count[ya - y0:])
+            for r in range(height):
+                for x in range(width):
+                    inv = np.float32(1.0) / ref_count[r, x] if ref_count[r, x] > 0.0 else np.float32(0.0)
+                    for k in range(n_feat):
+                        ref[r, k, x] *= inv
+            for i in range(n):
+                by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
+                bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
+                ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
+                if yb <= ya or xb <= xa:
+                    continue
+                _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
+                            ref_count, view_groups[i], acc, cnt)
+            for r in range(height):
+                for x in range(width):
+                    best = np.inf
+                    for g in range(n_groups):
+                        if cnt[g, r, x] >= min_count[g]:
+                            value = acc[g, r, x] / cnt[g, r, x]
+                            if value < best:
+                                best = value
+                    out[j, y0 + r, x0 + x] = best
+
+
+@njit(cache=True, inline="always")
+def _thomas(lower, diag, upper, rhs, out, c_work, d_work):
+    """Solve a tridiagonal system (Thomas algorithm); ``lower[0]`` and ``upper[-1]`` are unused."""
+    n = diag.shape[0]
+    c_work[0] = upper[0] / diag[0]
+    d_work[0] = rhs[0] / diag[0]
+    for i in range(1, n):
+        m = diag[i] - lower[i] * c_work[i - 1]
+        c_work[i] = upper[i] / m
+        d_work[i] = (rhs[i] - lower[i] * d_work[i - 1]) / m
+    out[n - 1] = d_work[n - 1]
+    for i in range(n - 2, -1, -1):
+        out[i] = d_work[i] - c_work[i] * out[i + 1]
+
+
+@njit(cache=True, parallel=True)
+def wls_rows(values, guide, lam, sigma, out):
+    """``(I + lam L_w) u = f`` along every row, ``w = exp(-|dg|^2 / sigma^2)`` from the guide.
+
+    Parameters
+    ----------
+    values : (Y, X, K) float64
+        Right-hand sides (K of them per row).
+    guide : (Y, X, C) float64
+        The image whose edges stop the smoothing.
+    lam, sigma : float
+    out : (Y, X, K) float64
+    """
+    n_rows, n_cols, n_k = values.shape
+    n_ch = guide.shape[2]
+    inv_s2 = 1.0 / (sigma * sigma)
+    for y in prange(n_rows):
+        link = np.zeros(n_cols)
+        for x in range(n_cols - 1):
+            dist = 0.0
+            for c in range(n_ch):
+                t = guide[y, x + 1, c] - guide[y, x, c]
+                dist += t * t
+            link[x] = lam * np.exp(-dist * inv_s2)
+        lower = np.zeros(n_cols)
+        upper = np.zeros(n_cols)
+        diag = np.ones(n_cols)
+        for x in range(n_cols):
+            if x > 0:
+                lower[x] = -link[x - 1]
+                diag[x] += link[x - 1]
+            if x < n_cols - 1:
+                upper[x] = -link[x]
+                diag[x] += link[x]
+        rhs = np.empty(n_cols)
+        sol = np.empty(n_cols)
+        c_work = np.empty(n_cols)
+        d_work = np.empty(n_cols)
+        for k in range(n_k):
+            for x in range(n_cols):
+                rhs[x] = values[y, x, k]
+            _thomas(lower, diag, upper, rhs, sol, c_work, d_work)
+            for x in range(n_cols):
+                out[y, x, k] = sol[x]
+
+
+@njit(cache=True, parallel=True)
+def box_mean_stack(images, radius, out):
+    """Mean over the ``(2 radius + 1)^2`` square around every pixel of every image ``(m, Y, X)``.
+
+    Only pixels inside the image count (the window is cut at the borders,
+    and the mean divides by the pixels it holds). Running sums in float64.
+    """
+    m, n_rows, n_cols = images.shape
+    tmp = np.empty((m, n_rows, n_cols), np.float32)
+    for job in prange(m * n_rows):
+        k = job // n_rows
+        y = job % n_rows
+        row = images[k, y]
+        acc = 0.0
+        for x in range(min(radius, n_cols)):
+            acc += row[x]
+        for x in range(n_cols):
+            if x + radius < n_cols:
+                acc += row[x + radius]
+            if x - radius - 1 >= 0:
+                acc -= row[x - radius - 1]
+            count = min(x + radius, n_cols - 1) - max(x - radius, 0) + 1
+            tmp[k, y, x] = acc / count
+    for k in prange(m):
+        acc = np.zeros(n_cols)
+        for y in range(min(radius, n_rows)):
+            for x in range(n_cols):
+                acc[x] += tmp[k, y, x]
+        for y in range(n_rows):
+            if y + radius < n_rows:
+                add = tmp[k, y + radius]
+                for x in range(n_cols):
+                    acc[x] += add[x]
+            if y - radius - 1 >= 0:
+                sub = tmp[k, y - radius - 1]
+                for x in range(n_cols):
+                    acc[x] -= sub[x]
+            inv = 1.0 / (min(y + radius, n_rows - 1) - max(y - radius, 0) + 1)
+            for x in range(n_cols):
+                out[k, y, x] = acc[x] * inv

@@ -1,0 +1,187 @@
+"""Numba kernels of the dense-aperture renderer (:mod:`napari_lfalias.render`).
+
+- ``warp_disparity``: the centre-of-aperture disparity map forward-warped
+  into every view (each centre pixel splats onto the four pixels around
+  where it lands; the nearer surface wins), holes (disocclusions) filled
+  along the row from the farther side.
+- ``shifted_bins``: for every view, the disparity bin of the surface its
+  sample at ``p + slope * q_i`` shows (nearest pixel), and the confidence
+  there; -1 outside the view.
+- ``composite_views``: per view, its shifted samples are split into the
+  disparity bins; each bin (premultiplied colour, coverage, confidence)
+  is blurred by its own box (the footprint of one view's cell of the
+  aperture at that disparity) and composited front to back. Views are
+  spread over a few threads, each with its own accumulators.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ._baseline_kernels import box_image
+
+__all__ = ["warp_disparity", "shifted_bins", "composite_views"]
+
+
+@njit(cache=True, inline="always")
+def _nearer(a, b, larger_first):
+    return a > b if larger_first else a < b
+
+
+@njit(cache=True)
+def _fill_holes(values, confidence, filled, larger_first):
+    """Fill the unfilled pixels of every row from the nearer filled neighbour that is farther away in depth
+    (a disocclusion shows the background); rows with nothing filled stay as they are."""
+    n_rows, n_cols = values.shape
+    for y in range(n_rows):
+        for x in range(n_cols):
+            if filled[y, x]:
+                continue
+            left = -1
+            for k in range(x - 1, -1, -1):
+                if filled[y, k]:
+                    left = k
+                    break
+            right = -1
+            for k in range(x + 1, n_cols):
+                if filled[y, k]:
+                    right = k
+                    break
+            if left < 0 and right < 0:
+                continue
+            pick = left
+            if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
+                pick = right
+            values[y, x] = values[y, pick]
+            confidence[y, x] = confidence[y, pick]
+            filled[y, x] = True
+
+
+@njit(cache=True, parallel=True)
+def warp_disparity(disparity, confidence, positions, larger_first, out_disparity, out_confidence):
+    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into every view ``(n, Y, X)``; holes are filled
+    along rows, then along columns (:func:`_fill_holes`); a view nothing lands in stays NaN."""
+    n = positions.shape[0]
+    n_rows, n_cols = disparity.shape
+    for i in prange(n):
+        out_d = out_disparity[i]
+        out_c = out_confidence[i]
+        out_d[:] = np.nan
+        out_c[:] = 0.0
+        filled = np.zeros((n_rows, n_cols), np.bool_)
+        for y in range(n_rows):
+            for x in range(n_cols):
+                d = disparity[y, x]
+                ty = y + d * positions[i, 0]
+                tx = x + d * positions[i, 1]
+                y0 = int(np.floor(ty))
+                x0 = int(np.floor(tx))
+                for yy in range(y0, y0 + 2):
+                    if yy < 0 or yy >= n_rows:
+                        continue
+                    for xx in range(x0, x0 + 2):
+                        if xx < 0 or xx >= n_cols:
+                            continue
+                        if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
+                            out_d[yy, xx] = d
+                            out_c[yy, xx] = confidence[y, x]
+                            filled[yy, xx] = True
+        _fill_holes(out_d, out_c, filled, larger_first)
+        _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+
+
+@njit(cache=True, parallel=True)
+def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, out_confidence):
+    """Bin index ``(n, Y, X)`` int16 of each view's surface at ``p + slope * q_i`` (nearest pixel); -1 outside."""
+    n, n_rows, n_cols = warped.shape
+    n_bins = edges.shape[0] - 1
+    for i in prange(n):
+        dy = slope * positions[i, 0]
+        dx = slope * positions[i, 1]
+        for y in range(n_rows):
+            sy = int(np.floor(y + dy + 0.5))
+            for x in range(n_cols):
+                sx = int(np.floor(x + dx + 0.5))
+                if sy < 0 or sy >= n_rows or sx < 0 or sx >= n_cols:
+                    out_bins[i, y, x] = -1
+                    out_confidence[i, y, x] = 0.0
+                    continue
+                d = warped[i, sy, sx]
+                if d != d:
+                    out_bins[i, y, x] = -1
+                    out_confidence[i, y, x] = 0.0
+                    continue
+                b = np.searchsorted(edges, d, side="right") - 1
+                out_bins[i, y, x] = min(max(b, 0), n_bins - 1)
+                out_confidence[i, y, x] = warped_confidence[i, sy, sx]
+
+
+@njit(cache=True)
+def _composite_view(values, weights, bins, confidence, order, taps, num, den, blurred, trust):
+    """Composite one view's bins front to back into the accumulators (one thread)."""
+    n_rows, n_cols, n_ch = values.shape
+    transmit = np.ones((n_rows, n_cols), np.float32)
+    for k in order:
+        y_lo, y_hi, x_lo, x_hi = n_rows, -1, n_cols, -1
+        for y in range(n_rows):
+            for x in range(n_cols):
+                if bins[y, x] == k and weights[y, x] > 0.0:
+                    y_lo = min(y_lo, y)
+                    y_hi = max(y_hi, y)
+                    x_lo = min(x_lo, x)
+                    x_hi = max(x_hi, x)
+        if y_hi < 0:
+            continue
+        ny, fy, nx, fx = taps[k, 0], taps[k, 1], taps[k, 2], taps[k, 3]
+        blur = ny > 0 or fy > 0.0 or nx > 0 or fx > 0.0
+        reach_y = int(ny) + 1 if blur else 0
+        reach_x = int(nx) + 1 if blur else 0
+        y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
+        x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
+        layer = np.zeros((y1 - y0, x1 - x0, n_ch + 2), np.float32)
+        for y in range(y_lo, y_hi + 1):
+            for x in range(x_lo, x_hi + 1):
+                if bins[y, x] == k:
+                    w = weights[y, x]
+                    for c in range(n_ch):
+                        layer[y - y0, x - x0, c] = values[y, x, c] * w
+                    layer[y - y0, x - x0, n_ch] = w
+                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x] * w
+        if blur:
+            summed = np.empty_like(layer)
+            box_image(layer, int(ny), fy, int(nx), fx, summed)
+            area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
+            layer = summed / area
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                t = transmit[y, x]
+                if t <= 0.0:
+                    continue
+                cell = layer[y - y0, x - x0]
+                cover = cell[n_ch]
+                if cover <= 0.0:
+                    continue
+                for c in range(n_ch):
+                    num[y, x, c] += t * cell[c]
+                den[y, x] += t * cover
+                if blur:
+                    blurred[y, x] += t * cover
+                trust[y, x] += t * cell[n_ch + 1]
+                transmit[y, x] = t * (1.0 - min(cover, 1.0))
+
+
+@njit(cache=True, parallel=True)
+def composite_views(values, weights, bins, confidence, order, taps, n_chunks, num, den, blurred, trust):
+    """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
+    the coverage of blurred bins ``blurred`` and the confidence-weighted coverage ``trust``
+    (each ``(n_chunks, Y, X)``), one chunk of views per thread.
+
+    ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
+    :func:`napari_lfalias.baselines._box_taps`); ``order``: bins front to back.
+    """
+    n = values.shape[0]
+    for chunk in prange(n_chunks):
+        for i in range(chunk, n, n_chunks):
+            _composite_view(values[i], weights[i], bins[i], confidence[i], order, taps,
+                            num[chunk], den[chunk], blurred[chunk], trust[chunk])

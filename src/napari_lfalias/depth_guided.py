@@ -1,0 +1,182 @@
+"""Aliasing detection and reduction guided by the light field's own disparity.
+
+The paper's detector (Algorithm 1) flags pixels whose refocus changes when
+a few views are dropped, and its reduction (Algorithm 2) replaces them by
+a blur of the refocused image. Measured on data it had not seen, neither
+holds: Cv is large wherever the views disagree for any reason (a smooth,
+slightly defocused gradient; vignetting; noise), and no blur of the
+refocused image is right where a defocused occluder partly hides an
+in-focus surface (``benchmarks/results/accuracy.md``).
+
+This module works from what aliasing *is*: the difference between the
+sparse refocus and what a dense aperture would record.
+
+- **Detection** (``method="depth"``). The disparity of every pixel is
+  estimated once per light field
+  (:func:`~napari_lfalias.disparity.estimate_disparity`); for each slope
+  the dense-aperture rendering
+  (:func:`~napari_lfalias.render.render_dense_aperture`) predicts the
+  reference, and a pixel is aliased where the naive refocus differs from
+  it by more than ``T`` in relative luminance after a light blur
+  (``T = 0.02``: the paper's "minimal intensity of perceivable
+  aliasing"), and the views really disagree there (their angular
+  coefficient of variation exceeds :data:`MIN_ANGULAR_CV`: a pixel whose
+  views agree is in focus, whatever a wrong disparity says).
+- **Reduction.** Those pixels take the rendering, with a soft edge; every
+  other pixel keeps the naive refocus exactly. A light field with nothing
+  aliased comes back unchanged.
+
+:class:`DepthGuide` keeps the estimate and the rendering of the last slope,
+so that a new threshold or a reduction after a detection costs nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from . import _validate
+from .errors import ParameterError
+from .lightfield import LightField
+
+__all__ = ["DepthGuide", "predicted_error", "MIN_ANGULAR_CV", "THRESHOLD"]
+
+#: Default threshold: the relative luminance difference a viewer perceives (the paper's T).
+THRESHOLD = 0.02
+#: Views whose luminance varies less than this (std / mean) agree: the pixel is in focus.
+MIN_ANGULAR_CV = 0.01
+#: Floor of the luminance a difference is divided by, as a fraction of the brightest.
+DARK_FLOOR = 0.01
+#: Renderings whose disparities have a confidence below this are not trusted to replace a pixel.
+MIN_TRUST = 0.05
+
+
+def predicted_error(naive, rendered):
+    """The relative luminance difference of the naive refocus from the rendering, after a light blur:
+    the ground-truth measure of aliasing (:func:`napari_lfalias.metrics.luminance_difference`),
+    with the rendering standing in for the dense aperture.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> a = np.full((8, 8, 1), 0.50, np.float32)
+    >>> round(float(predicted_error(a * 1.02, a).max()), 3)
+    0.02
+    """
+    from .metrics import luminance_difference
+
+    return luminance_difference(naive, rendered)
+
+
+class DepthGuide:
+    """The disparity of a light field and its dense-aperture renderings, computed once and kept.
+
+    Parameters
+    ----------
+    lf : LightField
+        The light field (a lazy one is read once).
+    disparity : ndarray (Y, X) or DisparityEstimate, optional
+        A disparity you already have (a known depth map, or an estimate);
+        default: :func:`~napari_lfalias.disparity.estimate_disparity` on
+        first use.
+    nearer : {"auto", "larger", "smaller"}
+        Which disparities are in front (occlusion order).
+
+    Examples
+    --------
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> scene = brick_room(n_views=4, size=48, seed=0)
+    >>> guide = DepthGuide(scene.lightfield, scene.disparity)
+    >>> guide.rendering(4.0).image.shape
+    (48, 48, 3)
+    """
+
+    def __init__(self, lf, disparity=None, nearer="auto"):
+        if not isinstance(lf, LightField):
+            raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
+        self.lf = lf.compute() if lf.is_lazy else lf
+        self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
+        self._given = disparity
+        self._estimate = None
+        self._larger_first = None
+        self._slope = None
+        self._rendering = None
+        self._moments = None
+
+    @property
+    def estimate(self):
+        """The disparity and its confidence: ``(disparity (Y, X), confidence (Y, X))``."""
+        if self._estimate is None:
+            from .baselines import _disparity_map
+            from .disparity import DisparityEstimate, estimate_disparity
+
+            given = self._given
+            if given is None:
+                given = estimate_disparity(self.lf)
+            if isinstance(given, DisparityEstimate):
+                self._estimate = (given.disparity, given.confidence)
+            else:
+                disparity = _disparity_map(given, self.lf.image_shape).astype(np.float32)
+                self._estimate = (disparity, np.ones(disparity.shape, np.float32))
+        return self._estimate
+
+    @property
+    def larger_first(self):
+        """Whether larger disparities are in front."""
+        if self._larger_first is None:
+            if self.nearer == "auto":
+                from .baselines import _larger_is_nearer
+
+                self._larger_first = _larger_is_nearer(np.ascontiguousarray(self.lf.views()),
+                                                       np.ascontiguousarray(self.lf.flat_positions()),
+                                                       self.estimate[0].astype(np.float64))
+            else:
+                self._larger_first = self.nearer == "larger"
+        return self._larger_first
+
+    def _keep(self, slope):
+        if self._slope != slope:
+            self._slope, self._rendering, self._moments = slope, None, None
+
+    def rendering(self, slope):
+        """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
+        from .render import render_dense_aperture
+
+        slope = _validate.finite_float("slope", slope)
+        self._keep(slope)
+        if self._rendering is None:
+            disparity, confidence = self.estimate
+            self._rendering = render_dense_aperture(self.lf, slope, disparity, confidence,
+                                                    larger_first=self.larger_first)
+        return self._rendering
+
+    def angular_cv(self, slope):
+        """The angular coefficient of variation of the views' luminance at ``slope``, ``(Y, X)``."""
+        from .refocus import view_moments
+
+        self._keep(slope)
+        if self._moments is None:
+            moments = view_moments(self.lf.luminance(), slope)
+            mean = moments.mean[..., 0]
+            floor = max(DARK_FLOOR * float(mean.max(initial=0.0)), float(np.finfo(np.float32).tiny))
+            self._moments = np.sqrt(np.maximum(moments.variance[..., 0], 0)) / np.maximum(mean, floor)
+        return self._moments
+
+    def scores(self, slope, naive):
+        """Predicted error of ``naive`` at ``slope``, set to 0 where the views agree or the rendering
+        is not trusted; ``(Y, X)`` float32."""
+        rendering = self.rendering(slope)
+        score = predicted_error(naive, rendering.image)
+        untrusted = rendering.trust < MIN_TRUST
+        agree = self.angular_cv(slope) <= MIN_ANGULAR_CV
+        score[untrusted | agree] = 0.0
+        return score
+
+    def blend(self, naive, rendered, mask):
+        """``naive`` with ``rendered`` in the ``mask`` pixels, the edge softened over about a pixel."""
+        if not mask.any():
+            return naive.copy()
+        weight = ndimage.gaussian_filter(mask.astype(np.float32), 0.7)
+        weight = np.where(mask, np.maximum(weight, 0.5), weight)
+        weight[weight < 0.02] = 0.0
+        return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)

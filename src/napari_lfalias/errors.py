@@ -11,6 +11,7 @@ __all__ = [
     "DecodeError",
     "CalibrationError",
     "OutputExistsError",
+    "LightFieldWarning",
 ]
 
 
@@ -36,3 +37,7 @@ class CalibrationError(LightFieldError, ValueError):
 
 class OutputExistsError(LightFieldError, FileExistsError):
     """An output file exists and replacing it was not asked for."""
+
+
+class LightFieldWarning(UserWarning):
+    """Something a user should know about an input that was still read (views missing from a grid, ...)."""

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import contextlib
 import json
+import shutil
 import threading
 from pathlib import Path
 
 import numpy as np
 
 from . import _atomic
+from ._budget import describe_bytes
 from .errors import OutputExistsError, ParameterError
 from .io_read import (  # the readers of what is written here, re-exported
     FORMAT_NAME,
@@ -131,6 +133,15 @@ def remove_temporaries(folder):
     return _atomic.remove_all(folder)
 
 
+def _short_write(exc, path):
+    """Say what a write that stopped short without an error number means (numpy's ``tofile``)."""
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return str(exc)
+    return f"the write stopped short ({exc}); {describe_bytes(free)} left on its disk"
+
+
 @contextlib.contextmanager
 def atomic_output(path, overwrite=False):
     """Context manager yielding a temporary path that becomes ``path`` on success.
@@ -171,7 +182,7 @@ def atomic_output(path, overwrite=False):
         _atomic.replace(tmp, path)
     except OSError as exc:
         if exc.filename is None:  # a full disk deep in a writer names no file: name the output
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+            raise OSError(exc.errno, exc.strerror or _short_write(exc, path), str(path)) from exc
         raise
     finally:
         if tmp.exists() or tmp.is_symlink():
@@ -421,7 +432,7 @@ def _stop_cleanly(work):
     store that is being removed (and asyncio complaining at exit). ``work``
     checks ``stop`` between views, so the wait is at most one view.
     """
-    stop = threading.Event()
+    stop, done = threading.Event(), threading.Event()
     failure = []
 
     def run():
@@ -429,13 +440,15 @@ def _stop_cleanly(work):
             work(stop)
         except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
             failure.append(exc)
+        finally:
+            done.set()
 
-    thread = threading.Thread(target=run, name="lfalias-zarr-writer", daemon=True)
-    thread.start()
+    # Waited on through an Event: an interrupted Thread.join can mark a running thread stopped.
+    threading.Thread(target=run, name="lfalias-zarr-writer", daemon=True).start()
     interrupted = None
-    while thread.is_alive():
+    while not done.is_set():
         try:
-            thread.join(0.05)
+            done.wait(0.05)
         except KeyboardInterrupt as exc:
             interrupted = exc
             stop.set()

@@ -52,7 +52,7 @@ FLAGS = {
     "fmt": "--format", "task": "--task",
 }
 _NAMES = "|".join(sorted(FLAGS, key=len, reverse=True))
-_ASSIGNED = re.compile(rf"(?<![\w.'`-])(?P<name>{_NAMES})=(?P<value>\(U, V\)|'[^']*'|\"[^\"]*\"|[^\s,;)]+)")
+_ASSIGNED = re.compile(rf"(?<![\w.'`-])(?P<name>{_NAMES})=(?P<value>\(U, V\)|'[^']*'|\"[^\"]*\"|[^\s,;)]+)?")
 _SUBJECT = re.compile(rf"(?P<lead>^|; |\()(?P<name>{_NAMES})(?= must\b|:)")
 
 
@@ -67,10 +67,12 @@ def as_flags(message):
     '--n must be an integer >= 2, got 1'
     >>> as_flags("pass grid=(U, V) or nonfinite='mask'")
     'pass --grid UxV or --nonfinite mask'
+    >>> as_flags("task='reduce' needs slope= (the disparity in focus)")
+    '--task reduce needs --slope (the disparity in focus)'
     """
     def assigned(match):
         flag, value = FLAGS[match["name"]], match["value"]
-        if value == "True":
+        if value in (None, "True"):
             return flag
         if value == "(U, V)":
             return f"{flag} UxV"

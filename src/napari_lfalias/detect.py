@@ -557,7 +557,8 @@ class AliasingDetector:
         f_low, f_high = (float(seen.min()), float(seen.max())) if seen.size else (0.0, 0.0)
         if method == "analytic":  # Cv = sqrt(c) s / mean, s <= (b - a) / 2, mean >= a, any weights
             angular_bound = relative / 2
-            cv_bound = math.sqrt(f_high) * angular_bound
+            with np.errstate(invalid="ignore"):  # 0 * inf (one view): NaN, never skipped
+                cv_bound = math.sqrt(f_high) * angular_bound
         else:
             # With every view seeing the tile at full weight, a pattern's mean is within
             # (n - k) / n (b - a) of the full mean; near the border or with sample

@@ -11,6 +11,7 @@ __all__ = [
     "DecodeError",
     "CalibrationError",
     "OutputExistsError",
+    "NonFiniteError",
     "LightFieldWarning",
 ]
 
@@ -33,6 +34,10 @@ class DecodeError(LightFieldError, ValueError):
 
 class CalibrationError(LightFieldError, ValueError):
     """A lenslet grid could not be fitted, or a grid model is inconsistent."""
+
+
+class NonFiniteError(ParameterError):
+    """Data hold NaN or Inf samples and were not asked to mask them (``nonfinite="mask"``)."""
 
 
 class OutputExistsError(LightFieldError, FileExistsError):

@@ -208,9 +208,12 @@ def _read_hyperstack(path, shape, has_weights):
 # -- zarr --------------------------------------------------------------------------------------------
 
 def _zarr_array(path, group, name, shape):
-    if name not in group:
+    try:
+        array = group[name] if name in group else None
+    except Exception as exc:  # noqa: BLE001 - damaged array metadata raises JSON, KeyError, ValueError, ...
+        raise _damaged(path, f"the metadata of its {name!r} array cannot be read ({exc})") from exc
+    if array is None or not hasattr(array, "cdata_shape"):
         raise _damaged(path, f"the store has no {name!r} array")
-    array = group[name]
     if tuple(array.shape) != tuple(shape) or not np.issubdtype(np.dtype(str(array.dtype)), np.floating):
         raise _damaged(path, f"its {name!r} array is {array.dtype} {tuple(array.shape)}, the header says "
                              f"float {tuple(shape)}")

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _atomic
+from . import _atomic, _budget, _validate
 from ._budget import describe_bytes
 from .errors import OutputExistsError, ParameterError
 from .io_read import (  # the readers of what is written here, re-exported
@@ -290,10 +290,9 @@ def write_png(path, image, overwrite=False, zoom=1, **preview):
     import imageio.v3 as iio
 
     pixels = image if np.asarray(image).dtype == np.uint8 else to_preview(image, **preview)
-    zoom = int(zoom)
-    if zoom < 1:
-        raise ParameterError(f"zoom must be a whole number >= 1, got {zoom}")
+    zoom = _validate.integer_at_least("zoom", zoom, 1)
     if zoom > 1:
+        _budget.check(np.asarray(pixels).nbytes * zoom**2, f"zoom={zoom}: the enlarged preview")
         pixels = np.repeat(np.repeat(pixels, zoom, axis=0), zoom, axis=1)
     with atomic_output(path, overwrite) as tmp:
         iio.imwrite(tmp, pixels, extension=".png")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ParameterError
+from .errors import NonFiniteError, ParameterError
 
 __all__ = ["LightField", "regular_positions", "REC709"]
 
@@ -139,7 +139,7 @@ class LightField:
             bad = ~np.isfinite(data)
             if bad.any():
                 if nonfinite == "raise":
-                    raise ParameterError(
+                    raise NonFiniteError(
                         f"data holds {int(bad.sum())} NaN/Inf samples; clean them, or pass "
                         "nonfinite='mask' to give them zero weight"
                     )

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .errors import DecodeError, ParameterError
+from .errors import DecodeError, NonFiniteError, ParameterError
 
 __all__ = ["load", "save"]
 
@@ -90,7 +90,13 @@ def load(path, **options):
         return load_camera_array(path, **options)
     from .decoders.lenslet import load_lenslet
 
-    return load_lenslet(path, **options)
+    try:
+        return load_lenslet(path, **options)
+    except NonFiniteError as exc:  # its advice (nonfinite=) is for arrays, folders and saved files
+        raise DecodeError(
+            f"{path}: the decoded light field holds NaN or Inf samples; they come from NaN or Inf pixels of "
+            "the capture, white or dark image: replace those pixels"
+        ) from exc
 
 
 def save(lf, path, overwrite=False):

@@ -8,11 +8,12 @@ one node of the task graph, shared by every slope.
 
 from __future__ import annotations
 
+import math
 import uuid
 
 import numpy as np
 
-from . import _validate
+from . import _budget, _validate
 from .errors import ParameterError
 from .lightfield import LightField
 
@@ -232,6 +233,7 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=None, max_size=128, percent
         lf = lf.compute()
     factor = max(1, int(np.ceil(max(lf.image_shape) / max_size)))
     small = _block_mean(_spanning_views(lf), factor)
+    _budget.check(n_slopes * math.prod(small.image_shape) * 4, f"n_slopes={n_slopes}: the variances of every slope")
     slopes = np.linspace(-max_slope, max_slope, n_slopes)
     variances = np.stack([view_moments(small, s / factor).variance[..., 0] for s in slopes])
     centre = small.data[small.grid_shape[0] // 2, small.grid_shape[1] // 2, ..., 0]

@@ -17,7 +17,9 @@ without allocating it.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +92,17 @@ def _png_header_shape(raw):
     return (height, width, samples), 2 if raw[24] == 16 else 1
 
 
+@contextlib.contextmanager
+def _pillow_header(path):
+    """``PIL.Image.open`` for the header only; its bomb warning is ours to give (the budget)."""
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        with Image.open(path) as image:
+            yield image
+
+
 def _read_tiff(path):
     import tifffile
 
@@ -136,9 +149,7 @@ def _decode_png_jpeg(path):
     if declared is not None:
         _check_decoded_size(path, *declared)
     else:  # JPEG, BMP: the size from the header, through Pillow
-        from PIL import Image
-
-        with Image.open(path) as image:
+        with _pillow_header(path) as image:
             width, height = image.size
             _check_decoded_size(path, (height, width, len(image.getbands())), 2)
     grey = raw[:8].tobytes() == _PNG_SIGNATURE and raw.size > 25 and raw[25] in _PNG_GREY_TYPES
@@ -241,9 +252,11 @@ def image_header(path):
                 shape = dict(zip(page.axes, page.shape))
             samples = shape.get("S", 1)
             return shape["Y"], shape["X"], 3 if samples >= 3 else 1
-        from PIL import Image
-
-        with Image.open(path) as image:
+        declared = _png_header_shape(np.fromfile(path, np.uint8, count=26))
+        if declared is not None:
+            (height, width, samples), _ = declared
+            return height, width, 1 if samples <= 2 else 3
+        with _pillow_header(path) as image:
             width, height = image.size
             return height, width, _pil_channels(image)
     except Exception as exc:

@@ -97,6 +97,7 @@ from scipy import ndimage
 from scipy.special import gammaln
 
 from . import _budget, _validate
+from ._numerics import unit_scale
 from .errors import ParameterError
 from .lightfield import REC709, LightField
 from .pyramid import MAX_LEVEL, lightfield_pyramid
@@ -339,13 +340,6 @@ def _mask(cv, threshold, scale, cv_scale):
     return cv > _mask_threshold(threshold, scale, cv_scale)
 
 
-def _unit_scale(peak):
-    """A power of two that brings ``peak`` near 1; 1 where float32 moments are safe already."""
-    if not 0 < peak < math.inf or 2.0**-16 <= peak <= 2.0**16:
-        return 1.0
-    return 2.0 ** -round(math.log2(peak))
-
-
 def _one_at_a_time(method):
     """Run a method of :class:`AliasingDetector` under its lock: its caches are filled in place."""
     @functools.wraps(method)
@@ -501,7 +495,7 @@ class AliasingDetector:
         positive data scale gives the same Cv (module notes: Numerics).
         """
         low, high = self._ranges[0]
-        self._scale = _unit_scale(float(np.max(high[np.isfinite(high)], initial=0.0)))
+        self._scale = unit_scale(float(np.max(high[np.isfinite(high)], initial=0.0)))
         if self._scale == 1.0:
             return lf
         self._ranges[0] = (low * self._scale, high * self._scale)

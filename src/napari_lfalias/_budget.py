@@ -7,8 +7,10 @@ allocate; beyond the budget they raise the caller's error class naming the
 file or parameter, how much it needs and how to raise the budget.
 
 The budget is ``LFALIAS_MEMORY_BUDGET`` (bytes, or with a suffix: ``512M``,
-``8G``), else half the memory the system has available now (Linux
-``MemAvailable``), else half the physical memory.
+``8G``), else a quarter of the memory the system has available now (Linux
+``MemAvailable``; else of the physical memory): what is decoded must leave
+room for the work on it (a detection holds a few arrays the size of the
+light field's luminance, a reduction more).
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ ENV = "LFALIAS_MEMORY_BUDGET"
 _UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 _AMOUNT = re.compile(r"^\s*(\d+(?:\.\d*)?)\s*([KMGT]?)(?:I?B)?\s*$", re.IGNORECASE)
 _FALLBACK = 4 * 2**30
+#: The default budget is the available memory divided by this.
+_SHARE = 4
 
 
 def describe_bytes(n):
@@ -73,7 +77,7 @@ def memory_budget():
     available = _available()
     if available is None:
         return _FALLBACK, f"the default when the memory cannot be measured; set {ENV} to change it"
-    return available // 2, f"half the memory available now; set {ENV} to change it"
+    return available // _SHARE, f"a quarter of the memory available now; set {ENV} to change it"
 
 
 def check(n_bytes, what, error=ParameterError):

@@ -34,14 +34,19 @@ def _png_of_zeros(path, width, height):
     return path
 
 
+def png_bomb_folder(folder, side):
+    """A folder of 3 x 3 views, each a PNG of ``side`` x ``side`` zeros; returns the first view."""
+    folder.mkdir()
+    first = _png_of_zeros(folder / "view_0_0.png", side, side)
+    for u, v in np.ndindex(3, 3):
+        if (u, v) != (0, 0):
+            (folder / f"view_{u}_{v}.png").write_bytes(first.read_bytes())
+    return first
+
+
 def test_a_folder_of_png_bombs_is_refused_from_the_headers(tmp_path, budget_256m):
     folder = tmp_path / "bombs"
-    folder.mkdir()
-    first = _png_of_zeros(folder / "view_0_0.png", 12000, 12000)
-    for u in range(3):
-        for v in range(3):
-            if (u, v) != (0, 0):
-                (folder / f"view_{u}_{v}.png").write_bytes(first.read_bytes())
+    first = png_bomb_folder(folder, 12000)
     assert first.stat().st_size < 200_000  # 144 Mpx in a small file
     with pytest.raises(DecodeError, match=r"view_0_0\.png: 9 views of 12000 x 12000 x 1 float32.* need 4\.8 GiB, "
                                           r"more than the memory budget of 256\.0 MiB \(set by LFALIAS_MEMORY_BUDGET\)"):

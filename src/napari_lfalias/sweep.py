@@ -210,8 +210,8 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=None, max_size=128, percent
         position (full-resolution pixels).
     n_slopes : int, optional
         Number of candidates. Default: one pixel of shift across the
-        aperture between neighbours (33 for 5 x 5 views, 113 for 15 x 15),
-        at most ``MAX_CANDIDATES``.
+        views compared between neighbours (33 for 5 x 5 views, 65 for
+        9 x 9 and larger grids), at most ``MAX_CANDIDATES``.
     max_size : int
         Longest side of the reduced views.
     percentiles : (float, float)
@@ -229,13 +229,14 @@ def estimate_slope_range(lf, max_slope=4.0, n_slopes=None, max_size=128, percent
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     max_slope = _validate.positive_float("max_slope", max_slope)
-    if n_slopes is None:
-        n_slopes = _default_candidates(lf, max_slope)
-    n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 3)
     if lf.is_lazy:
         lf = lf.compute()
+    compared = _central_views(lf)
+    if n_slopes is None:
+        n_slopes = _default_candidates(compared, max_slope)
+    n_slopes = _validate.integer_at_least("n_slopes", n_slopes, 3)
     factor = max(1, int(np.ceil(max(lf.image_shape) / max_size)))
-    small = _block_mean(_central_views(lf), factor)
+    small = _block_mean(compared, factor)
     _budget.check(n_slopes * math.prod(small.image_shape) * 4, f"n_slopes={n_slopes}: the variances of every slope")
     slopes = np.linspace(-max_slope, max_slope, n_slopes)
     variances = np.stack([view_moments(small, s / factor).variance[..., 0] for s in slopes])

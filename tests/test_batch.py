@@ -419,7 +419,7 @@ def test_a_nonexistent_input_fails_alone(client, tmp_path, capsys):
     assert main(argv) == 1
     captured = capsys.readouterr()
     assert "1 done, 0 skipped (already done), 1 failed" in captured.out
-    assert captured.err.strip().splitlines() == [f"lfalias: error: {missing}: {missing}: no such input file or folder"]
+    assert captured.err.strip().splitlines() == [f"lfalias: error: {missing}: no such input file or folder"]
 
 
 @pytest.mark.parametrize("fmt", ["tif", "zarr"])

@@ -97,3 +97,18 @@ def test_grid_UxV_on_the_command_line_reads_a_plain_list(partial, tmp_path, caps
     out = tmp_path / "views.zarr"
     assert main(["convert", str(plain), "--grid", "3x11", "-o", str(out), "-q"]) == 0
     assert lfa.load(out).grid_shape == (3, 11)
+
+
+def test_a_stanford_folder_missing_a_view_keeps_the_positions_its_names_imply(tmp_path):
+    import imageio.v3 as iio
+
+    step = 2.5
+    for u in range(3):
+        for v in range(4):
+            if (u, v) != (1, 2):
+                y, x = 10 - step * u, 40 + step * v  # camera coordinates in the names, y falling with the row
+                iio.imwrite(tmp_path / f"out_{u:02d}_{v:02d}_{y:.3f}_{x:.3f}_.png", np.full((4, 6), 50 * u + v, np.uint8))
+    with pytest.warns(LightFieldWarning, match=r"1 of the 12 views of the 3x4 grid are missing \(out_01_02_\*\.png\)"):
+        lf = lfa.load(tmp_path)
+    np.testing.assert_allclose(lf.positions, lfa.regular_positions(3, 4), atol=1e-12)
+    assert lf.weights[1, 2].max() == 0 and lf.weights.sum() == 11 * 24

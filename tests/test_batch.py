@@ -1,5 +1,6 @@
 """Batch conversions and reductions on a real dask LocalCluster (2 worker processes)."""
 
+import contextlib
 import json
 import logging
 import os
@@ -213,13 +214,13 @@ def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, c
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"task": "reduce"}, "--slope"),
+        ({"task": "reduce"}, "needs slope="),
         ({"task": "sharpen"}, "task"),
         ({"fmt": "h5"}, "format"),
         ({"task": "reduce", "slope": 0.0, "gamma": 1.5}, "gamma"),
         ({"task": "reduce", "slope": 0.0, "solver": "magic"}, "solver"),
         ({"task": "reduce", "slope": 0.0, "colour": "red"}, "colour"),
-        ({"task": "convert", "slope": 0.5}, "--task reduce"),
+        ({"task": "convert", "slope": 0.5}, "task='reduce' only"),
     ],
 )
 def test_plan_rejects_bad_batches(tmp_path, kwargs, match):
@@ -358,3 +359,77 @@ def test_tasks_share_the_cores_of_their_host(client):
     import numba
 
     assert _threads_in_a_task({"tcp://elsewhere:1": 1}) == numba.get_num_threads()
+
+
+def _kill_whoever_runs(marker, pids, stop, killed):
+    """Kill (SIGKILL) every worker process seen running the job of ``marker``, until ``stop``."""
+    while not stop.is_set():
+        try:
+            record = json.loads(marker.read_text())
+        except (OSError, ValueError):
+            record = {}
+        if record.get("state") == "running" and record.get("pid") in pids and record["pid"] not in killed:
+            time.sleep(0.05)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(record["pid"], signal.SIGKILL)
+            killed.append(record["pid"])
+        time.sleep(0.005)
+
+
+def test_an_input_that_kills_its_worker_fails_alone_and_the_inputs_queued_behind_it_are_retried(tmp_path):
+    """dask blames every task queued on a dying worker; those that never started are run again."""
+    import dask
+
+    inputs = write_inputs(tmp_path / "in", 6, size=96)
+    poison = inputs[0]
+    out = tmp_path / "out"
+    # One death is enough for dask to give up on every task the worker held (queued ones too).
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                           dashboard_address=":0", silence_logs=logging.CRITICAL)
+    own = distributed.Client(cluster)
+    stop, killed = threading.Event(), []
+    try:
+        pids = set(own.run(os.getpid).values())
+        killer = threading.Thread(target=_kill_whoever_runs,
+                                  args=(out / MARKER_DIR / "scene0.convert.json", pids, stop, killed))
+        killer.start()
+        report = run_batch(inputs, out, "convert", client=own)
+    finally:
+        stop.set()
+        own.close()
+        cluster.close()
+    assert killed, "the poisoned input was never seen running"
+    assert list(report.failed) == [str(poison)], report.failed
+    assert "died" in report.failed[str(poison)]
+    assert sorted(report.done) == sorted(map(str, inputs[1:]))
+    for path in inputs[1:]:
+        np.testing.assert_array_equal(io_write.read_lightfield(out / path.name).data,
+                                      io_write.read_lightfield(path).data)
+
+
+def test_a_nonexistent_input_fails_alone(client, tmp_path, capsys):
+    inputs = write_inputs(tmp_path / "in", 2)
+    missing = tmp_path / "in" / "gone.tif"
+    report = run_batch([inputs[0], missing, inputs[1]], tmp_path / "out", "convert", client=client)
+    assert list(report.failed) == [str(missing)] and "no such input" in report.failed[str(missing)]
+    assert sorted(report.done) == sorted(map(str, inputs))
+    argv = ["batch", str(missing), str(inputs[0]), "--out", str(tmp_path / "out2"),
+            "--scheduler", client.scheduler.address, "-q"]
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    assert "1 done, 0 skipped (already done), 1 failed" in captured.out
+    assert captured.err.strip().splitlines() == [f"lfalias: error: {missing}: no such input file or folder"]
+
+
+@pytest.mark.parametrize("fmt", ["tif", "zarr"])
+def test_a_truncated_output_is_done_again_on_resume(client, tmp_path, fmt):
+    inputs = write_inputs(tmp_path / "in", 2)
+    out = tmp_path / "out"
+    assert len(run_batch(inputs, out, "convert", client=client, fmt=fmt).done) == 2
+    target = out / f"scene1.{fmt}"
+    damaged = target if fmt == "tif" else next(p for p in sorted((target / "views").rglob("*")) if p.is_file())
+    damaged.write_bytes(damaged.read_bytes()[:100])
+    report = run_batch(inputs, out, "convert", client=client, fmt=fmt)
+    assert report.skipped == [str(inputs[0])] and report.done == [str(inputs[1])]
+    np.testing.assert_array_equal(io_write.read_lightfield(target).data, io_write.read_lightfield(inputs[1]).data)

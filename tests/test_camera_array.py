@@ -14,7 +14,8 @@ import napari_lfalias as lfa
 from napari_lfalias.decoders.camera_array import load_camera_array
 from napari_lfalias.decoders.hci import read_parameters_cfg, read_pfm
 from napari_lfalias.decoders.view_names import stanford_positions
-from napari_lfalias.errors import DecodeError, ParameterError
+from napari_lfalias.errors import DecodeError, LightFieldWarning, ParameterError
+from napari_lfalias.lightfield import regular_positions
 from napari_lfalias.refocus import view_moments
 
 # -- helpers ------------------------------------------------------------------------
@@ -193,11 +194,17 @@ def test_every_parameters_cfg_example_parses(lf_data):
         assert isinstance(params["scene"], str)
 
 
-def test_hci_cfg_camera_count_must_match(tmp_path, lf_data):
-    folder = _write_views(tmp_path / "scene", _views(3, 3), _hci_name)
+def test_hci_cfg_sets_the_grid_and_grid_must_agree_with_it(tmp_path, lf_data):
+    views = _views(3, 3)
+    folder = _write_views(tmp_path / "scene", views, _hci_name)
     shutil.copy(lf_data / "hci_parameters_cfg_examples" / "training_boxes_parameters.cfg", folder / "parameters.cfg")
-    with pytest.raises(DecodeError, match=r"parameters\.cfg.*9x9.*3x3"):
-        load_camera_array(folder)
+    with pytest.warns(LightFieldWarning, match="72 of the 81 views of the 9x9 grid are missing"):
+        lf = load_camera_array(folder)
+    # input_Cam000..008 are the first row of the 9x9 grid the file describes
+    np.testing.assert_array_equal(lf.data[0], _expected(views).reshape((9,) + views.shape[2:]))
+    assert lf.weights[0].min() == 1 and lf.weights[1:].max() == 0
+    with pytest.raises(DecodeError, match=r"parameters\.cfg: says 9x9 cameras.*3x3 grid \(grid=\)"):
+        load_camera_array(folder, grid=(3, 3))
 
 
 def test_hci_ground_truth_of_another_size_is_an_error(tmp_path):
@@ -418,18 +425,26 @@ def test_folder_without_images(tmp_path):
         lfa.load(folder)
 
 
-def test_missing_view_is_named(tmp_path):
-    folder = _folder_of(tmp_path, _views(3, 3))
+def test_a_missing_view_gets_weight_0_at_its_position_and_is_named(tmp_path):
+    views = _views(3, 3)
+    folder = _folder_of(tmp_path, views)
     (folder / "v_1_2.png").unlink()
-    with pytest.raises(DecodeError, match=r"1 of 9 views.*missing.*row 1, column 2"):
-        load_camera_array(folder)
+    with pytest.warns(LightFieldWarning, match=r"1 of the 9 views of the 3x3 grid are missing \(row 1, column 2"):
+        lf = load_camera_array(folder)
+    expected = _expected(views)
+    expected[1, 2] = 0
+    np.testing.assert_array_equal(lf.data, expected)
+    assert lf.weights[1, 2].max() == 0 and lf.weights.sum() == 8 * 12 * 16
+    np.testing.assert_array_equal(lf.positions, regular_positions(3, 3))
+    assert lf.meta["missing_views"] == ["row 1, column 2 (like v_0_0.png)"] and lf.meta["files"][5] is None
 
 
 def test_missing_hci_view_is_named(tmp_path):
     folder = _folder_of(tmp_path, _views(3, 3), _hci_name)
     (folder / "input_Cam008.png").unlink()  # the last one: the grid stays 3x3
-    with pytest.raises(DecodeError, match=r"missing: input_Cam008\.png"):
-        load_camera_array(folder)
+    with pytest.warns(LightFieldWarning, match=r"missing \(input_Cam008\.png\)"):
+        lf = load_camera_array(folder)
+    assert lf.grid_shape == (3, 3) and lf.weights[2, 2].max() == 0 and lf.weights[:2].min() == 1
 
 
 def test_list_count_must_match_grid(tmp_path):

@@ -278,7 +278,7 @@ def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monk
 
 @pytest.mark.parametrize(
     "option, value, word",
-    [("--gamma", 1.5, "gamma"), ("--n", 1, "n_patterns"), ("--threshold", -1, "threshold"), ("--levels", -1, "max_level")],
+    [("--gamma", 1.5, "--gamma must"), ("--n", 1, "--n must"), ("--threshold", -1, "--threshold must"), ("--levels", -1, "--levels must")],
 )
 def test_out_of_range_detection_options_are_one_line_errors(capsys, plane, tmp_path, option, value, word):
     status, _, err = run(capsys, "reduce", plane[0], "--slope", 0, "-o", tmp_path / "r.png", option, value)

@@ -5,6 +5,7 @@ The public API (DESIGN section 3) is available from the package::
 
     import napari_lfalias as lfa
     lf = lfa.load(path)
+    lfa.save(lf, "views.tif")          # what save writes, load reads back
     img = lfa.refocus(lf, slope)
     det = lfa.detect_aliasing(lf, slope)
     res = lfa.reduce_aliasing(lf, slope)
@@ -15,7 +16,7 @@ cheap (the napari plugin and the command line start fast).
 
 import importlib
 
-from .errors import CalibrationError, DecodeError, LightFieldError, ParameterError
+from .errors import CalibrationError, DecodeError, LightFieldError, OutputExistsError, ParameterError
 from .lightfield import LightField, regular_positions
 
 # Imported eagerly: the function shares its name with its module, and a lazy
@@ -27,9 +28,10 @@ __version__ = "0.1.0"
 # public name -> submodule that defines it
 _LAZY = {
     "load": "loading",
+    "save": "loading",
     "detect_aliasing": "detect",
-    "Detection": "detect",
     "AliasingDetector": "detect",
+    "Detection": "detect",
     "estimate_disparity": "disparity",
     "DisparityEstimate": "disparity",
     "antialiased_refocus": "render",
@@ -42,7 +44,8 @@ _LAZY = {
 
 _SUBMODULES = {
     "decoders", "synthetic", "metrics", "poisson", "detect", "reduce",
-    "baselines", "refocus", "loading", "sweep", "pyramid", "disparity", "render", "depth_guided", "presets",
+    "baselines", "refocus", "loading", "sweep", "pyramid", "io_read", "io_write", "disparity", "render",
+    "depth_guided", "presets",
 }
 
 __all__ = [
@@ -52,6 +55,7 @@ __all__ = [
     "ParameterError",
     "DecodeError",
     "CalibrationError",
+    "OutputExistsError",
     "refocus",
     "shift_views",
     "view_moments",

@@ -1,17 +1,20 @@
 """Open any input of the command line and of batch runs as a LightField.
 
-A light field written by :mod:`napari_lfalias.io_write` (``lfalias
-convert``) is read back directly; anything else goes through
-:func:`napari_lfalias.load` with the lenslet options that were given.
+Everything goes through :func:`napari_lfalias.load`; this module turns the
+command line's values (``--grid 9x9`` or ``--grid GRID.json``) into its
+options.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
-from .errors import CalibrationError, DecodeError
+from .errors import CalibrationError
 
-__all__ = ["open_input", "read_grid", "lenslet_options", "check_reduce_options"]
+__all__ = ["open_input", "read_grid", "view_grid", "lenslet_options", "check_reduce_options"]
+
+_VIEW_GRID = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 
 
 def read_grid(path):
@@ -37,10 +40,23 @@ def read_grid(path):
         raise CalibrationError(f"{path}: not a lenslet grid model JSON ({exc})") from exc
 
 
-def lenslet_options(white=None, dark=None, grid=None):
-    """The keyword options of :func:`napari_lfalias.load` for a lenslet capture.
+def view_grid(text):
+    """``"9x9"`` -> ``(9, 9)``; ``None`` for anything else (a grid model's JSON file, say).
 
-    ``grid`` may be a GridModel or the path of its JSON.
+    Examples
+    --------
+    >>> view_grid("3x11"), view_grid("grid.json")
+    ((3, 11), None)
+    """
+    match = _VIEW_GRID.match(str(text))
+    return (int(match[1]), int(match[2])) if match else None
+
+
+def lenslet_options(white=None, dark=None, grid=None):
+    """The keyword options of :func:`napari_lfalias.load` for ``white``, ``dark`` and ``grid``.
+
+    ``grid`` may be a view grid (``(U, V)`` or ``"UxV"``, for folders of
+    views), a GridModel, or the path of a grid model's JSON (lenslet captures).
     """
     options = {}
     if white is not None:
@@ -48,12 +64,16 @@ def lenslet_options(white=None, dark=None, grid=None):
     if dark is not None:
         options["dark"] = dark
     if grid is not None:
-        options["grid"] = read_grid(grid) if isinstance(grid, (str, Path)) else grid
+        if isinstance(grid, (str, Path)) and view_grid(grid) is not None:
+            grid = view_grid(grid)
+        elif isinstance(grid, (str, Path)):
+            grid = read_grid(grid)
+        options["grid"] = grid
     return options
 
 
-def open_input(path, white=None, dark=None, grid=None):
-    """Open ``path`` (views folder, lenslet capture, or a converted light field).
+def open_input(path, white=None, dark=None, grid=None, nonfinite=None):
+    """Open ``path`` (views folder, lenslet capture, or a saved light field) with :func:`napari_lfalias.load`.
 
     Parameters
     ----------
@@ -62,8 +82,11 @@ def open_input(path, white=None, dark=None, grid=None):
         ``.tif``/``.zarr`` light field written by ``lfalias convert``.
     white, dark : str or Path, optional
         White (flat-field) and dark frames of a lenslet capture.
-    grid : GridModel or str or Path, optional
-        A calibrated grid model (or its JSON file) to skip calibration.
+    grid : tuple, str, Path or GridModel, optional
+        ``(U, V)`` or ``"UxV"``: the view grid of a folder; a grid model
+        (or its JSON file) of a lenslet capture, to skip calibration.
+    nonfinite : {"raise", "mask"}, optional
+        What to do with NaN or Inf samples.
 
     Returns
     -------
@@ -71,22 +94,16 @@ def open_input(path, white=None, dark=None, grid=None):
 
     Raises
     ------
-    DecodeError, CalibrationError
-        If the input cannot be read; the message names the file.
+    DecodeError, CalibrationError, ParameterError
+        If the input cannot be read, or an option does not apply to it; the
+        message names the file or option.
     """
-    from . import io_write
     from .loading import load
 
-    path = Path(path)
-    if not path.exists():
-        raise DecodeError(f"{path}: no such file or folder")
-    if io_write.is_lightfield_file(path) is not None:
-        if white is not None or dark is not None or grid is not None:
-            raise DecodeError(
-                f"{path}: already a decoded light field; --white, --dark and --grid do not apply"
-            )
-        return io_write.read_lightfield(path)
-    return load(path, **lenslet_options(white, dark, grid))
+    options = lenslet_options(white, dark, grid)
+    if nonfinite is not None:
+        options["nonfinite"] = nonfinite
+    return load(path, **options)
 
 
 def check_reduce_options(slope, **options):

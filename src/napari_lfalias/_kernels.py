@@ -18,7 +18,7 @@ from numba import njit, prange
 
 __all__ = [
     "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
-    "pyr_down", "luminance_ranges", "pattern_cv", "bilinear_point", "in_focus_consensus",
+    "pyr_down", "luminance_ranges", "pattern_moments", "bilinear_point", "in_focus_consensus",
 ]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
@@ -28,12 +28,19 @@ TAP_EPS = 1e-7
 ROUNDING = 2.0 ** -24
 
 
+#: Largest shift (pixels) the kernels take; beyond any image, far below int64 overflow.
+MAX_SHIFT = 2.0**40
+
+
 def split_shifts(shifts):
     """Integer parts ``(n, 2)`` int64 and fractions ``(n, 2)`` float64 of ``(dy, dx)`` shifts.
 
     Fractions within ``TAP_EPS`` of 0 or 1 are snapped to whole pixels.
+    Shifts are clipped to ``MAX_SHIFT`` pixels: a view shifted that far
+    sees nothing of any image, as it would at any larger shift, and the
+    integer parts stay far from overflow.
     """
-    shifts = np.asarray(shifts, np.float64)
+    shifts = np.clip(np.asarray(shifts, np.float64), -MAX_SHIFT, MAX_SHIFT)
     base = np.floor(shifts)
     frac = shifts - base
     up = frac >= 1.0 - TAP_EPS
@@ -501,17 +508,21 @@ def _less_dropped(total, per_view, drops, n_drops, out):
 
 
 @njit(cache=True, parallel=True)
-def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_count):
-    """Cv over sampling patterns (Algorithm 1, Eq. 7) of the pixels ``pixels (M,)`` of a shifted stack.
+def pattern_moments(values, weights, n_ch, drops, n_drops, pixels, acc_n, acc_mean, acc_m2, out_reference,
+                    out_count):
+    """Accumulate the refocused values of a block of sampling patterns (Algorithm 1, Eq. 7).
 
     ``values (n, P*C)`` are the shifted views (normalised), ``weights (n, P)``
-    their validity. Pattern ``j`` keeps every view but ``drops[j, :n_drops[j]]``,
-    so its weighted sums are the totals over all views less the few dropped
-    ones. Each pattern's mean is taken as a deviation from the pixel's mean
-    over all views (float64), so an offset costs no precision; patterns that
-    keep no view seeing the pixel are left out. ``out[pixels[q]]`` receives
-    the population std over the patterns divided by ``max(mean, floor)``,
-    the largest over channels, and ``out_count`` the number of views that see it.
+    their validity; the pixels are ``pixels (M,)``. Pattern ``j`` keeps
+    every view but ``drops[j, :n_drops[j]]``, so its weighted sums are the
+    totals over all views less the few dropped ones. Each pattern's mean is
+    taken as a deviation from the pixel's mean over all views (float64,
+    ``out_reference (M, C)``), so an offset costs no precision; patterns
+    that keep no view seeing the pixel are left out. The deviations are
+    added to running counts, means and sums of squared differences
+    (Welford: ``acc_n``, ``acc_mean``, ``acc_m2``, each ``(M, C)``), so the
+    patterns can come in blocks and memory does not grow with their
+    number. ``out_count (M,)`` receives the number of views that see each pixel.
     """
     n = weights.shape[0]
     n_patterns = drops.shape[0]
@@ -526,13 +537,10 @@ def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_co
             for q in range(m):
                 w[i, q] = weights[i, pixels[start + q]]
                 total_w[q] += w[i, q]
-        den = np.empty((n_patterns, m))
-        for j in range(n_patterns):
-            _less_dropped(total_w, w, drops[j], n_drops[j], den[j])
-        best = np.zeros(m)
+        den = np.empty(m)
         x = np.empty((n, m))
         dev = np.empty((n, m))
-        offsets = np.empty((n_patterns, m))
+        offset = np.empty(m)
         for ch in range(n_ch):
             total = np.zeros(m)
             for i in range(n):
@@ -543,42 +551,29 @@ def pattern_cv(values, weights, n_ch, drops, n_drops, floor, pixels, out, out_co
             for q in range(m):
                 if total_w[q] > 0.0:
                     reference[q] = total[q] / total_w[q]
+                out_reference[start + q, ch] = reference[q]
             base = np.zeros(m)  # sum of w (x - reference) over all views: 0 up to rounding
             for i in range(n):
                 for q in range(m):
                     dev[i, q] = w[i, q] * (x[i, q] - reference[q])
                     base[q] += dev[i, q]
-            mean = np.zeros(m)
-            valid = np.zeros(m)
             for j in range(n_patterns):
-                _less_dropped(base, dev, drops[j], n_drops[j], offsets[j])
+                _less_dropped(total_w, w, drops[j], n_drops[j], den)
+                _less_dropped(base, dev, drops[j], n_drops[j], offset)
                 for q in range(m):
-                    if den[j, q] > 1e-6:
-                        offsets[j, q] /= den[j, q]
-                        mean[q] += offsets[j, q]
-                        valid[q] += 1.0
-            spread = np.zeros(m)
-            for q in range(m):
-                if valid[q] > 0.0:
-                    mean[q] /= valid[q]
-            for j in range(n_patterns):
-                for q in range(m):
-                    if den[j, q] > 1e-6:
-                        gap = offsets[j, q] - mean[q]
-                        spread[q] += gap * gap
-            for q in range(m):
-                if valid[q] > 0.0:
-                    level = reference[q] + mean[q]
-                    std = np.sqrt(spread[q] / valid[q])
-                    if std > ROUNDING * abs(level):  # else float32 data cannot hold it: rounding
-                        best[q] = max(best[q], std / max(level, floor))
+                    if den[q] > 1e-6:
+                        value = offset[q] / den[q]
+                        k = start + q
+                        acc_n[k, ch] += 1.0
+                        delta = value - acc_mean[k, ch]
+                        acc_mean[k, ch] += delta / acc_n[k, ch]
+                        acc_m2[k, ch] += delta * (value - acc_mean[k, ch])
         for q in range(m):
-            out[pixels[start + q]] = best[q]
             seen = 0
             for i in range(n):
                 if w[i, q] > 0.0:
                     seen += 1
-            out_count[pixels[start + q]] = seen
+            out_count[start + q] = seen
 
 
 @njit(cache=True, inline="always")

@@ -56,6 +56,13 @@ def integer_at_least(name, value, minimum):
     return value
 
 
+def integer_between(name, value, minimum, maximum):
+    """Return ``value`` as an int, checking it is a whole number in ``minimum .. maximum``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not minimum <= value <= maximum:
+        raise ParameterError(f"{name} must be an integer from {minimum} to {maximum}, got {value!r}")
+    return int(value)
+
+
 def one_of(name, value, choices):
     """Return ``value``, checking it is one of ``choices``."""
     if value not in choices:

@@ -2,12 +2,19 @@
 
 Each input is one task. A task writes its outputs atomically and then a
 *done marker* (``<out>/.lfalias-batch/<name>.<task>.json``) holding a key
-of the input (path, size, modification time) and of the options; a re-run
-skips the inputs whose marker matches and whose outputs are all there. A
-worker lost mid-task loses nothing: the scheduler runs the task again on
-another worker, and the temporary file the lost worker was writing is
-removed when the batch ends (no partial file ever stands under a final
-name).
+of the input (path, size, modification time) and of the options, and the
+size of every output file; a re-run skips the inputs whose marker matches
+and whose outputs are all there at the sizes recorded (a truncated or
+replaced output is done again). A worker lost mid-task loses nothing: the
+scheduler runs the task again on another worker, and the temporary file
+the lost worker was writing is removed when the batch ends (no partial
+file ever stands under a final name).
+
+When one input kills its workers again and again, dask gives up on it
+(``KilledWorker``), and on the inputs that were queued on those workers
+too, although they never ran: the marker says whether a task started, so
+those are submitted again and only the input that ran is reported. An
+input that does not exist fails alone, as an unreadable one does.
 
 One batch at a time per output folder: temporaries left in it are removed
 at the start and at the end of a run.
@@ -33,6 +40,7 @@ import logging
 import json
 import os
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,6 +81,9 @@ class Job:
         for reductions, the parameters of :func:`reduce_aliasing`.
     label : str
         The input as the user gave it (what reports and messages show).
+    attempt : str
+        Which submission of the job this is (written to the marker when the
+        task starts, so that the batch can tell a task that never ran).
     """
 
     source: str
@@ -82,19 +93,30 @@ class Job:
     key: str
     options: dict = field(hash=False)
     label: str = ""
+    attempt: str = ""
 
-    def is_done(self):
-        """True when the marker says this job (same key) finished, and every output exists.
-
-        A marker left in state ``"running"`` (a task killed between two of its
-        outputs) never counts, even when older outputs stand under every name.
-        """
+    def _marker(self):
         try:
             marker = json.loads(Path(self.marker).read_text())
         except (OSError, ValueError):
-            return False
-        return (isinstance(marker, dict) and marker.get("key") == self.key and marker.get("state") == "done"
-                and all(Path(p).exists() for p in self.outputs))
+            return {}
+        return marker if isinstance(marker, dict) else {}
+
+    def is_done(self):
+        """True when the marker says this job (same key) finished, and every output is there as written.
+
+        A marker left in state ``"running"`` (a task killed between two of its
+        outputs) never counts, even when older outputs stand under every name;
+        nor does an output whose size differs from the one the marker
+        recorded (truncated, or replaced by something else).
+        """
+        marker = self._marker()
+        return (marker.get("key") == self.key and marker.get("state") == "done"
+                and marker.get("sizes") == {p: _output_size(p) for p in self.outputs})
+
+    def started(self):
+        """True when the marker shows that this submission (:attr:`attempt`) of the job began."""
+        return bool(self.attempt) and self._marker().get("attempt") == self.attempt
 
 
 @dataclass
@@ -109,6 +131,14 @@ class BatchReport:
     @property
     def ok(self):
         return not self.failed
+
+
+def _output_size(path):
+    """The size of an output file, or of every file of an output folder (a zarr store); None if missing."""
+    path = Path(path)
+    if path.is_dir():
+        return {str(p.relative_to(path)): p.stat().st_size for p in sorted(path.rglob("*")) if p.is_file()}
+    return path.stat().st_size if path.is_file() else None
 
 
 def _input_identity(path):
@@ -138,7 +168,7 @@ def _output_names(source, task, out_dir, fmt):
 
 def _reduce_options(slope, detect_kw):
     if slope is None:
-        raise ParameterError("--task reduce needs --slope (the disparity in focus)")
+        raise ParameterError("task='reduce' needs slope= (the disparity in focus)")
     from ._validate import finite_float
 
     unknown = sorted(set(detect_kw) - set(REDUCE_OPTIONS))
@@ -150,7 +180,8 @@ def _reduce_options(slope, detect_kw):
     return {"slope": slope, **detect_kw}
 
 
-def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lenslet=None, slope=None, **detect_kw):
+def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lenslet=None, slope=None, *,
+               skip_missing=False, **detect_kw):
     """Make the jobs of a batch and check them before anything runs.
 
     Parameters
@@ -168,6 +199,9 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
         ``white``, ``dark`` (paths) and ``grid`` (a GridModel's JSON text).
     slope : float, optional
         Needed by ``task="reduce"``.
+    skip_missing : bool
+        Leave inputs that do not exist out of the plan (:func:`run_batch`
+        reports them as failed) instead of refusing the batch.
     **detect_kw
         Options of :func:`~napari_lfalias.reduce_aliasing` (``REDUCE_OPTIONS``:
         ``gamma``, ``n_patterns``, ``threshold``, ``threshold_scale``,
@@ -194,16 +228,18 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
         raise ParameterError("no inputs given")
     out_dir = Path(out_dir).absolute()
     if out_dir.exists() and not out_dir.is_dir():
-        raise ParameterError(f"{out_dir}: --out must be a folder")
+        raise ParameterError(f"{out_dir}: out_dir must be a folder")
     options = {**(lenslet or {})}
     if task == "reduce":
         options.update(_reduce_options(slope, detect_kw))
     elif slope is not None or detect_kw:
         given = sorted(detect_kw) + (["slope"] if slope is not None else [])
-        raise ParameterError(f"{', '.join(given)}: reduction options apply to task 'reduce' (--task reduce) only")
+        raise ParameterError(f"{', '.join(given)}: reduction options apply to task='reduce' only")
     jobs, names = [], {}
     for given in inputs:
         if not Path(given).exists():
+            if skip_missing:
+                continue
             raise ParameterError(f"{given}: no such input file or folder")
         source = Path(given).absolute()
         stem, outputs = _output_names(source, task, out_dir, fmt)
@@ -220,13 +256,14 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
             ours = Path(job.marker).exists()
             clash = next((p for p in job.outputs if Path(p).exists()), None)
             if clash and not ours:
-                raise OutputExistsError(f"{clash}: output exists and no batch wrote it; pass --overwrite to replace it")
+                raise OutputExistsError(f"{clash}: output exists and no batch wrote it; pass overwrite=True to replace it")
     return jobs
 
 
 def _write_marker(job, state, extra=None):
     Path(job.marker).parent.mkdir(parents=True, exist_ok=True)
-    record = {"key": job.key, "state": state, "source": job.source, "outputs": list(job.outputs), **(extra or {})}
+    record = {"key": job.key, "state": state, "source": job.source, "outputs": list(job.outputs),
+              "attempt": job.attempt, **(extra or {})}
     io_write.write_json(job.marker, record, overwrite=True)
 
 
@@ -234,10 +271,12 @@ def _open_job_input(job):
     from ._inputs import open_input
 
     grid = job.options.get("grid")
-    if grid:
+    if isinstance(grid, str):  # a lenslet grid model, as JSON
         from .decoders.lenslet import GridModel
 
         grid = GridModel.from_json(grid)
+    elif grid is not None:  # a view grid (U, V)
+        grid = tuple(grid)
     return open_input(job.source, white=job.options.get("white"), dark=job.options.get("dark"), grid=grid)
 
 
@@ -325,7 +364,8 @@ def run_job(job, kernel_threads=None):
     except LightFieldError as exc:
         return job.label, "failed", " ".join(str(exc).split())
     seconds = time.perf_counter() - start
-    _write_marker(job, "done", {"seconds": seconds, "host": os.uname().nodename, "pid": os.getpid()})
+    _write_marker(job, "done", {"seconds": seconds, "host": os.uname().nodename, "pid": os.getpid(),
+                                "sizes": {p: _output_size(p) for p in job.outputs}})
     return job.label, "done", f"{seconds:.3f} s"
 
 
@@ -416,7 +456,7 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
     if client is not None and (scheduler or workers):
         raise ParameterError("give a client, or a scheduler address or a number of local workers, not both")
     if scheduler and workers:
-        raise ParameterError(f"--workers sizes the local cluster; the scheduler at {scheduler} has its own workers")
+        raise ParameterError(f"workers= sizes the local cluster; the scheduler at {scheduler} has its own workers")
     if workers is not None:
         from ._validate import integer_at_least
 
@@ -425,15 +465,21 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
     for name, frame in (("white", white), ("dark", dark)):
         if frame is not None:
             if not Path(frame).is_file():
-                raise ParameterError(f"{frame}: no such {name} frame (--{name})")
+                raise ParameterError(f"{frame}: no such {name} frame ({name}=)")
             lenslet[name] = str(Path(frame).resolve())
     if grid is not None:
-        lenslet["grid"] = lenslet_options(grid=grid)["grid"].to_json()
+        grid = lenslet_options(grid=grid)["grid"]
+        lenslet["grid"] = list(grid) if isinstance(grid, tuple) else grid.to_json()
     out_dir = Path(out_dir)
-    jobs = plan_batch(inputs, out_dir, task, fmt, overwrite, lenslet, slope, **detect_kw)
+    jobs = plan_batch(inputs, out_dir, task, fmt, overwrite, lenslet, slope, skip_missing=True, **detect_kw)
     out_dir.mkdir(parents=True, exist_ok=True)
     _clean(out_dir)
     report = BatchReport()
+    for given in inputs:
+        if not Path(given).exists():
+            report.failed[str(given)] = f"{given}: no such input file or folder"
+            if progress:
+                progress(str(given), "failed", report.failed[str(given)])
     todo = []
     for job in jobs:
         if job.is_done():
@@ -459,7 +505,24 @@ def _connect(scheduler, timeout):
         return Client(scheduler, timeout=timeout)
     except (OSError, ValueError) as exc:  # refused, timed out (TimeoutError is an OSError), bad address
         reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise ParameterError(f"--scheduler {scheduler}: cannot reach a dask scheduler there ({reason})") from exc
+        raise ParameterError(f"scheduler={scheduler}: cannot reach a dask scheduler there ({reason})") from exc
+
+
+#: Times a task that never started is submitted again after dask gave up on it (``KilledWorker``).
+RESUBMITS = 3
+
+
+def _attempt(job):
+    return dataclasses.replace(job, attempt=uuid.uuid4().hex)
+
+
+def _lost(exc):
+    """The one-line report of a task dask gave up on."""
+    detail = " ".join(str(exc).split()) or type(exc).__name__
+    if type(exc).__name__ == "KilledWorker":
+        return ("the workers running it died every time (out of memory, or a crash while reading it?); "
+                f"dask gave up on it ({detail})")
+    return f"{type(exc).__name__}: {detail}"
 
 
 def _run_jobs(jobs, report, scheduler, workers, client, retries, progress, connect_timeout):
@@ -469,14 +532,26 @@ def _run_jobs(jobs, report, scheduler, workers, client, retries, progress, conne
     if own:
         client = _connect(scheduler, connect_timeout) if scheduler else local_client(workers)
     try:
-        futures = client.map(run_job, jobs, kernel_threads=kernel_thread_budget(client), retries=retries,
-                             pure=False)
-        sources = {future.key: job.label for future, job in zip(futures, jobs)}
-        for future in as_completed(futures):
+        budget = kernel_thread_budget(client)
+        jobs = [_attempt(job) for job in jobs]
+        futures = client.map(run_job, jobs, kernel_threads=budget, retries=retries, pure=False)
+        running = {future.key: job for future, job in zip(futures, jobs)}
+        resubmitted = dict.fromkeys((job.label for job in jobs), 0)
+        pending = as_completed(futures)
+        for future in pending:
+            job = running.pop(future.key)
             try:
                 source, status, detail = future.result()
             except Exception as exc:  # noqa: BLE001 - retries spent, or workers lost too often
-                source, status, detail = sources[future.key], "failed", f"{type(exc).__name__}: {exc}"
+                if not job.started() and resubmitted[job.label] < RESUBMITS:
+                    # Blamed for deaths on the worker it was queued on: it never ran. Again.
+                    resubmitted[job.label] += 1
+                    job = _attempt(job)
+                    again = client.submit(run_job, job, kernel_threads=budget, retries=retries, pure=False)
+                    running[again.key] = job
+                    pending.add(again)
+                    continue
+                source, status, detail = job.label, "failed", _lost(exc)
             if status == "failed":
                 report.failed[source] = detail
             elif status == "skipped":

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import textwrap
+import warnings
 
-from .errors import LightFieldError
+from .errors import LightFieldError, LightFieldWarning
 
 __all__ = ["main", "build_parser"]
 
@@ -30,9 +32,54 @@ examples:
 
 A lenslet capture needs --white (and optionally --dark and --grid GRID.json
 from `lfalias convert --save-grid`); folders of views and files written by
-`lfalias convert` need nothing else. Outputs are never replaced unless
---overwrite is given, and are written atomically.
+`lfalias convert` need nothing else (--grid 9x9 names the grid of a folder
+whose names do not, or one with views missing). Outputs are never replaced
+unless --overwrite is given, and are written atomically.
 """
+
+
+#: A negative number, with an exponent or not, is a value and not an option: ``--slope -1e-3``
+#: (argparse's own pattern misses exponents). ``-inf`` and ``-nan`` too, so that they get the
+#: core's "must be finite" rather than "expected one argument".
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
+
+#: Python parameters named in library messages -> the flags of this command line.
+FLAGS = {
+    "white": "--white", "dark": "--dark", "grid": "--grid", "nonfinite": "--nonfinite", "overwrite": "--overwrite",
+    "slope": "--slope", "gamma": "--gamma", "n_patterns": "--n", "threshold": "--threshold",
+    "threshold_scale": "--threshold-scale", "method": "--method", "seed": "--seed", "max_level": "--levels",
+    "solver": "--solver", "keep_in_focus": "--keep-in-focus", "workers": "--workers", "scheduler": "--scheduler",
+    "fmt": "--format", "task": "--task",
+}
+_NAMES = "|".join(sorted(FLAGS, key=len, reverse=True))
+_ASSIGNED = re.compile(rf"(?<![\w.'`-])(?P<name>{_NAMES})=(?P<value>\(U, V\)|'[^']*'|\"[^\"]*\"|[^\s,;)]+)?")
+_SUBJECT = re.compile(rf"(?P<lead>^|; |\()(?P<name>{_NAMES})(?= must\b|:)")
+
+
+def as_flags(message):
+    """Say a library message in this command line's terms: ``overwrite=True`` -> ``--overwrite``.
+
+    Examples
+    --------
+    >>> as_flags("x.tif: output exists; pass overwrite=True to replace it")
+    'x.tif: output exists; pass --overwrite to replace it'
+    >>> as_flags("n_patterns must be an integer >= 2, got 1")
+    '--n must be an integer >= 2, got 1'
+    >>> as_flags("pass grid=(U, V) or nonfinite='mask'")
+    'pass --grid UxV or --nonfinite mask'
+    >>> as_flags("task='reduce' needs slope= (the disparity in focus)")
+    '--task reduce needs --slope (the disparity in focus)'
+    """
+    def assigned(match):
+        flag, value = FLAGS[match["name"]], match["value"]
+        if value in (None, "True"):
+            return flag
+        if value == "(U, V)":
+            return f"{flag} UxV"
+        return f"{flag} {value.strip(chr(39) + chr(34))}"
+
+    message = _ASSIGNED.sub(assigned, message)
+    return _SUBJECT.sub(lambda match: match["lead"] + FLAGS[match["name"]], message)
 
 
 def _add_input(parser):
@@ -41,10 +88,18 @@ def _add_input(parser):
 
 
 def _add_lenslet_options(parser):
-    lenslet = parser.add_argument_group("lenslet capture")
+    lenslet = parser.add_argument_group("input")
     lenslet.add_argument("--white", metavar="FILE", help="white (flat-field) image of the lenslet array")
     lenslet.add_argument("--dark", metavar="FILE", help="dark frame subtracted from capture and white")
-    lenslet.add_argument("--grid", metavar="JSON", help="grid model from `convert --save-grid` (skips calibration)")
+    lenslet.add_argument(
+        "--grid", metavar="UxV|JSON",
+        help="a folder of views: its grid, e.g. 9x9 (views missing from it get weight 0); a lenslet capture: "
+        "the grid model from `convert --save-grid` (skips calibration)",
+    )
+    lenslet.add_argument(
+        "--nonfinite", choices=("raise", "mask"), default=None,
+        help="NaN or Inf samples: refuse the input (default), or give them weight 0",
+    )
 
 
 def _add_output(parser, what):
@@ -128,6 +183,7 @@ def build_parser():
     )
     from . import __version__
 
+    parser._negative_number_matcher = _NEGATIVE_NUMBER
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-q", "--quiet", action="store_true", help="print no timings or progress")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -138,6 +194,7 @@ def build_parser():
             epilog=f"example:\n  {example}",
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
+        sub._negative_number_matcher = _NEGATIVE_NUMBER
         # Also accepted after the command; SUPPRESS keeps `lfalias -q CMD` from being reset.
         sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                          help="print no timings or progress")
@@ -235,9 +292,12 @@ def main(argv=None):
     except SystemExit as exc:  # --help, --version (0) and usage errors (2)
         return int(exc.code or 0)
     try:
-        return _dispatch(args, sys.stdout)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", LightFieldWarning)
+            warnings.showwarning = _one_line_warnings(warnings.showwarning)
+            return _dispatch(args, sys.stdout)
     except LightFieldError as exc:
-        sys.stderr.write(f"lfalias: error: {_one_line(exc)}\n")
+        sys.stderr.write(f"lfalias: error: {as_flags(_one_line(exc))}\n")
         return 1
     except BrokenPipeError:  # `lfalias info ... | head`: the reader left, nothing to report
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -257,6 +317,17 @@ def main(argv=None):
 
 def _one_line(exc):
     return " ".join(str(exc).split())
+
+
+def _one_line_warnings(show):
+    """A ``warnings.showwarning`` that prints ours as one line (``lfalias: warning: ...``), others with ``show``."""
+    def show_warning(message, category, *args, **kwargs):
+        if issubclass(category, LightFieldWarning):
+            sys.stderr.write(f"lfalias: warning: {as_flags(_one_line(message))}\n")
+        else:
+            show(message, category, *args, **kwargs)
+
+    return show_warning
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -63,6 +63,10 @@ precision. The mean a Cv is divided by is floored at
 ``dark_floor`` times the brightest luminance of the light field (default
 1 %), so black and near-black pixels get a finite Cv that sensor noise
 cannot push over ``T``, and Cv stays invariant to a scaling of the data.
+Data whose brightest luminance lies outside ``[2**-16, 2**16]`` are first
+multiplied by a power of two that brings it near 1 (exact in float32), so
+float32 moments neither overflow nor underflow: Cv is the same for any
+finite positive scale of the data (1e-30 and 1e30 included).
 A spread across views below ``2**-24`` of the mean (half a float32 step)
 is rounding of the sums, not in the float32 data: it counts as 0, so a
 constant light field has Cv exactly 0.
@@ -82,7 +86,9 @@ shifted views, and a new ``T`` only re-thresholds (:meth:`Detection.rethreshold`
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -90,11 +96,12 @@ import numpy as np
 from scipy import ndimage
 from scipy.special import gammaln
 
-from . import _validate
+from . import _budget, _validate
+from ._numerics import unit_scale
 from .errors import ParameterError
 from .lightfield import REC709, LightField
 from .presets import resolve
-from .pyramid import lightfield_pyramid
+from .pyramid import MAX_LEVEL, lightfield_pyramid
 from .refocus import _inputs, _run, shift_views
 
 __all__ = [
@@ -220,10 +227,34 @@ def sampling_patterns(n, gamma, n_patterns, seed=None):
     n = _validate.integer_at_least("n", n, 1)
     gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
     n_patterns = _validate.integer_at_least("n_patterns", n_patterns, 2)
+    _budget.check(n_patterns * n * 4, f"n_patterns={n_patterns}: {n_patterns} patterns of {n} views")
+    patterns = np.empty((n_patterns, n), np.float32)
+    row = 0
+    for sizes, order in _pattern_blocks(n, gamma, n_patterns, seed):
+        keep = (np.arange(n)[None, :] < sizes[:, None]).astype(np.float32)
+        np.put_along_axis(patterns[row:row + len(sizes)], order, keep, axis=1)
+        row += len(sizes)
+    return patterns
+
+
+#: Random numbers drawn per block of patterns: memory stays bounded however many patterns there are.
+_PATTERN_BLOCK_ELEMENTS = 2**18
+
+
+def _pattern_blocks(n, gamma, n_patterns, seed):
+    """The patterns of :func:`sampling_patterns`, a block at a time, from one generator.
+
+    Yields ``(sizes (b,), order (b, n))``: pattern ``j`` keeps the views
+    ``order[j, :sizes[j]]``. The blocks have a size set by ``n`` alone, so a
+    seed gives the same patterns however they are consumed.
+    """
     rng = np.random.default_rng(seed)
-    sizes = rng.integers(smallest_subset(n, gamma), n + 1, size=n_patterns)
-    ranks = np.argsort(np.argsort(rng.random((n_patterns, n)), axis=1), axis=1)
-    return (ranks < sizes[:, None]).astype(np.float32)
+    block = max(1, _PATTERN_BLOCK_ELEMENTS // n)
+    low = smallest_subset(n, gamma)
+    for start in range(0, n_patterns, block):
+        count = min(block, n_patterns - start)
+        sizes = rng.integers(low, n + 1, size=count)
+        yield sizes, np.argsort(rng.random((count, n)), axis=1)
 
 
 # -- the result -----------------------------------------------------------------------
@@ -314,6 +345,42 @@ def _mask(cv, threshold, scale, cv_scale):
     return cv > _mask_threshold(threshold, scale, cv_scale)
 
 
+def _one_at_a_time(method):
+    """Run a method of :class:`AliasingDetector` under its lock: its caches are filled in place."""
+    @functools.wraps(method)
+    def locked(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return locked
+
+
+def _pattern_cv(values, weights, n_ch, index, gamma, n_patterns, seed, floor):
+    """Monte-Carlo Cv and view count of the pixels ``index`` of a shifted stack (Eq. 7).
+
+    The patterns are drawn and accumulated a block at a time
+    (:func:`_pattern_blocks`, the ``pattern_moments`` kernel): memory does
+    not grow with ``n_patterns``.
+    """
+    from ._kernels import ROUNDING
+
+    n = weights.shape[0]
+    m = index.size
+    acc_n, acc_mean, acc_m2, reference = (np.zeros((m, n_ch)) for _ in range(4))
+    count = np.zeros(m, np.int32)
+    most_dropped = max(n - smallest_subset(n, gamma), 1)
+    for sizes, order in _pattern_blocks(n, gamma, n_patterns, seed):
+        # Pattern j drops order[j, sizes[j]:], the first n - sizes[j] of the reversed order.
+        drops = np.ascontiguousarray(order[:, ::-1][:, :most_dropped], np.int64)
+        _run("pattern_moments", values, weights, n_ch, drops, (n - sizes).astype(np.int64), index,
+             acc_n, acc_mean, acc_m2, reference, count)
+    std = np.sqrt(np.divide(acc_m2, acc_n, out=np.zeros_like(acc_m2), where=acc_n > 0))
+    level = reference + acc_mean
+    resolved = (acc_n > 0) & (std > ROUNDING * np.abs(level))  # else float32 data cannot hold it: rounding
+    cv = np.where(resolved, std / np.maximum(level, floor), 0.0)
+    return cv.max(axis=1).astype(np.float32), count
+
+
 # -- the detector ---------------------------------------------------------------------
 
 @dataclass
@@ -344,6 +411,14 @@ class AliasingDetector:
     tile : int
         Side of those tiles, in pixels.
 
+    Notes
+    -----
+    A detector may be shared by threads (a napari session and a script,
+    say): its methods run one at a time, under a lock, because they fill
+    shared caches. Threads that want detections at the same time gain
+    nothing from separate detectors either, as the kernels already use
+    every core; a separate detector only spends memory on its own caches.
+
     Examples
     --------
     >>> import numpy as np
@@ -372,6 +447,8 @@ class AliasingDetector:
         self._slope = None  # the slope whose moments and stacks are kept
         self._moments = {}
         self._stacks = {}
+        self._scale = 1.0  # the power of two the detection light field was multiplied by (_unit_scaled)
+        self._lock = threading.RLock()
         self._disparity = disparity
         self._guide = None
 
@@ -379,18 +456,20 @@ class AliasingDetector:
     def guide(self):
         """The :class:`~napari_lfalias.depth_guided.DepthGuide` of the light field (disparity estimated
         on first use, unless one was given), for ``method="depth"``."""
-        if self._guide is None:
-            from .depth_guided import DepthGuide
+        with self._lock:
+            if self._guide is None:
+                from .depth_guided import DepthGuide
 
-            self._guide = DepthGuide(self.lf, self._disparity)
-        return self._guide
+                self._guide = DepthGuide(self.lf, self._disparity)
+            return self._guide
 
     # -- cached inputs -----------------------------------------------------------
+    @_one_at_a_time
     def level(self, level):
         """The detection light field (luminance or colour) of pyramid ``level``."""
         level = _validate.integer_at_least("level", level, 0)
         if not self._levels:
-            self._levels = [self._luminance_and_ranges(self.lf, self.luminance == "rec709", 0)]
+            self._levels = [self._unit_scaled(self._luminance_and_ranges(self.lf, self.luminance == "rec709", 0))]
         while len(self._levels) <= level:  # one level at a time, each from the one before
             coarser = lightfield_pyramid(self._levels[-1], 1)[1]
             coarser.meta["pyramid_level"] = len(self._levels)
@@ -427,12 +506,35 @@ class AliasingDetector:
             self._luminance_and_ranges(lf, False, level)
         return self._ranges[level]
 
+    def _unit_scaled(self, lf):
+        """``lf`` (level 0) and its tile ranges times a power of two that brings the peak near 1.
+
+        Cv is a ratio, so scaling changes nothing but where float32 moments
+        overflow (a peak above ~1e19) or underflow (below ~1e-12): any finite
+        positive data scale gives the same Cv (module notes: Numerics).
+        """
+        low, high = self._ranges[0]
+        self._scale = unit_scale(float(np.max(high[np.isfinite(high)], initial=0.0)))
+        if self._scale == 1.0:
+            return lf
+        self._ranges[0] = (low * self._scale, high * self._scale)
+        if lf is self.lf:  # the caller's data: scale a copy
+            return LightField._derived(lf.data * np.float32(self._scale), lf.positions, lf.meta, lf.weights)
+        lf.data *= np.float32(self._scale)  # our own luminance views
+        return lf
+
     @property
-    def floor(self):
-        """The floor of the mean a Cv is divided by (``dark_floor`` x brightest luminance)."""
+    def _floor(self):
+        """The floor of the mean, in the units of the detection light field (:meth:`_unit_scaled`)."""
         high = self._tile_ranges(0)[1]
         peak = float(np.max(high[np.isfinite(high)], initial=0.0))
         return max(self.dark_floor * peak, float(np.finfo(np.float32).tiny))
+
+    @property
+    @_one_at_a_time
+    def floor(self):
+        """The floor of the mean a Cv is divided by (``dark_floor`` x brightest luminance), in data units."""
+        return self._floor / self._scale
 
     def _keep_slope(self, slope):
         if self._slope != slope:
@@ -453,13 +555,14 @@ class AliasingDetector:
         """Tiles whose Cv provably stays at or below the threshold (decided before shifting)."""
         lf = self.level(level)
         low, high = self._tile_ranges(level)
-        reach = math.ceil(abs(slope) * float(np.abs(lf.positions).max(initial=0.0))) + 1
+        # Beyond the image, a wider footprint adds nothing (and a huge slope would ask for a huge filter).
+        reach = math.ceil(min(abs(slope) * float(np.abs(lf.positions).max(initial=0.0)), max(lf.image_shape))) + 1
         size = 2 * math.ceil(reach / self.tile) + 1
         # Samples beyond the image carry no weight: they widen no range.
         low = ndimage.minimum_filter(low, size=size, mode="constant", cval=np.inf)
         high = ndimage.maximum_filter(high, size=size, mode="constant", cval=-np.inf)
         with np.errstate(invalid="ignore", over="ignore"):
-            relative = (high - low) / np.maximum(low, self.floor)  # (b - a) / max(a, floor)
+            relative = (high - low) / np.maximum(low, self._floor)  # (b - a) / max(a, floor)
         relative = np.where(np.isfinite(relative), relative, np.inf)
         n = lf.n_views
         factors = variance_factors(n, gamma)
@@ -467,7 +570,8 @@ class AliasingDetector:
         f_low, f_high = (float(seen.min()), float(seen.max())) if seen.size else (0.0, 0.0)
         if method == "analytic":  # Cv = sqrt(c) s / mean, s <= (b - a) / 2, mean >= a, any weights
             angular_bound = relative / 2
-            cv_bound = math.sqrt(f_high) * angular_bound
+            with np.errstate(invalid="ignore"):  # 0 * inf (one view): NaN, never skipped
+                cv_bound = math.sqrt(f_high) * angular_bound
         else:
             # With every view seeing the tile at full weight, a pattern's mean is within
             # (n - k) / n (b - a) of the full mean; near the border or with sample
@@ -540,20 +644,15 @@ class AliasingDetector:
         rounding = (np.float32(ROUNDING) * moments.mean) ** 2  # below it: rounding, not the data
         variance = np.where(moments.variance > rounding, moments.variance, np.float32(0))
         variance *= factors.astype(np.float32)[moments.count][..., None]
-        cv = np.sqrt(np.maximum(variance, 0)) / np.maximum(moments.mean, np.float32(self.floor))
+        cv = np.sqrt(np.maximum(variance, 0)) / np.maximum(moments.mean, np.float32(self._floor))
         return cv.max(axis=-1), moments.count
 
-    def _monte_carlo_cv(self, level, slope, pixels, patterns):
+    def _monte_carlo_cv(self, level, slope, pixels, gamma, n_patterns, seed):
         values, weights, n_ch = self._stack_for(level, slope)
-        dropped = patterns == 0
-        n_drops = dropped.sum(axis=1).astype(np.int64)
-        drops = np.zeros((patterns.shape[0], max(int(n_drops.max()), 1)), np.int64)
-        for j, row in enumerate(dropped):
-            drops[j, :n_drops[j]] = np.flatnonzero(row)
         cv = np.zeros(weights.shape[1], np.float32)
         count = np.zeros(weights.shape[1], np.int32)
-        _run("pattern_cv", values, weights, n_ch, drops, n_drops, self.floor,
-             np.flatnonzero(pixels.ravel()), cv, count)
+        index = np.flatnonzero(pixels.ravel())
+        cv[index], count[index] = _pattern_cv(values, weights, n_ch, index, gamma, n_patterns, seed, self._floor)
         shape = self.level(level).image_shape
         return cv.reshape(shape), count.reshape(shape)
 
@@ -578,6 +677,7 @@ class AliasingDetector:
         return Detection(score, score > np.float32(threshold), ones, evaluated, threshold, "cv", slope, 0, params)
 
     # -- the public entry point ----------------------------------------------------------
+    @_one_at_a_time
     def detect(self, slope, gamma=None, n_patterns=None, threshold=None, method=None, seed=None, *,
                level=0, threshold_scale="cv", region=None, preset=None):
         """Detect angular aliasing at ``slope`` (see :func:`detect_aliasing`).
@@ -608,7 +708,7 @@ class AliasingDetector:
         _validate.one_of("threshold_scale", threshold_scale, THRESHOLD_SCALES)
         if seed is not None:
             seed = _validate.integer_at_least("seed", seed, 0)
-        level = _validate.integer_at_least("level", level, 0)
+        level = _validate.integer_between("level", level, 0, MAX_LEVEL)
         lf = self.level(level)
         if region is not None:
             region = np.asarray(region)
@@ -629,8 +729,7 @@ class AliasingDetector:
         if method == "analytic":
             cv, count = self._analytic_cv(level, level_slope, tiles, factors)
         else:
-            patterns = sampling_patterns(lf.n_views, gamma, n_patterns, seed)
-            cv, count = self._monte_carlo_cv(level, level_slope, pixels, patterns)
+            cv, count = self._monte_carlo_cv(level, level_slope, pixels, gamma, n_patterns, seed)
         cv = np.where(pixels, cv, np.float32(0)).astype(np.float32)
         cv_scale = np.sqrt(factors).astype(np.float32)[np.where(pixels, count, lf.n_views)]
         params = {"gamma": gamma, "n_patterns": n_patterns, "method": method, "seed": seed}

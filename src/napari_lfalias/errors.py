@@ -11,6 +11,8 @@ __all__ = [
     "DecodeError",
     "CalibrationError",
     "OutputExistsError",
+    "NonFiniteError",
+    "LightFieldWarning",
 ]
 
 
@@ -34,5 +36,13 @@ class CalibrationError(LightFieldError, ValueError):
     """A lenslet grid could not be fitted, or a grid model is inconsistent."""
 
 
+class NonFiniteError(ParameterError):
+    """Data hold NaN or Inf samples and were not asked to mask them (``nonfinite="mask"``)."""
+
+
 class OutputExistsError(LightFieldError, FileExistsError):
     """An output file exists and replacing it was not asked for."""
+
+
+class LightFieldWarning(UserWarning):
+    """Something a user should know about an input that was still read (views missing from a grid, ...)."""

@@ -1,35 +1,43 @@
 """Atomic writers: light fields (ImageJ TIFF, zarr), images (TIFF, PNG previews).
 
 Every writer goes through :func:`atomic_output`: the data are written to a
-temporary name beside the target (``.<name>.tmp-<random><suffix>``) and moved
-into place with :func:`os.replace`, so a crash, a kill or a full disk never
-leaves a half-written file under the final name. An existing output is
-replaced only with ``overwrite=True``; otherwise :class:`OutputExistsError`.
+temporary name beside the target (``.<name>.tmp-<host>-<pid>-<random><suffix>``)
+and moved into place (:mod:`napari_lfalias._atomic`: a folder is exchanged
+atomically), so a crash, a kill or a full disk never leaves a half-written
+file under the final name, and never leaves the final name missing. The
+temporaries of killed writers are removed the next time their target is
+written. An existing output is replaced only with ``overwrite=True``;
+otherwise :class:`OutputExistsError`.
 
-A light field written by :func:`write_lightfield` reads back with
-:func:`read_lightfield` with its view positions, sample weights and
-metadata (the lenslet grid model as JSON among them):
-
-- ``.tif``/``.tiff``: an ImageJ hyperstack, axes ``TZCYX`` = (U, V, C, Y, X),
-  float32, one page per view and channel; the JSON header is the ImageJ
-  ``Info`` property. Sample weights, when present, are one more channel.
-- ``.zarr``: a zarr group with a ``views`` array (U, V, Y, X, C) chunked one
-  view per chunk, an optional ``weights`` array, and the JSON in its
-  attributes.
+A light field written by :func:`write_lightfield` (:func:`napari_lfalias.save`)
+reads back with :func:`napari_lfalias.load` with its view positions, sample
+weights and metadata (the lenslet grid model as JSON among them); the two
+formats and their checks are described in :mod:`napari_lfalias.io_read`.
+A zarr write interrupted by Ctrl-C stops after the view in flight and
+removes its temporary store before the interrupt goes on.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import os
 import shutil
-import uuid
+import threading
 from pathlib import Path
 
 import numpy as np
 
-from .errors import DecodeError, OutputExistsError, ParameterError
+from . import _atomic, _budget, _validate
+from ._budget import describe_bytes
+from .errors import OutputExistsError, ParameterError
+from .io_read import (  # the readers of what is written here, re-exported
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    LIGHTFIELD_SUFFIXES,
+    is_lightfield_file,
+    read_lightfield,
+    require_zarr,
+)
 
 __all__ = [
     "FORMAT_NAME",
@@ -50,13 +58,9 @@ __all__ = [
     "is_lightfield_file",
 ]
 
-#: Marker of the light-field files this module writes.
-FORMAT_NAME = "napari-lfalias light field"
-FORMAT_VERSION = 1
 #: Part of every temporary name (see :func:`is_temporary`).
-TEMP_MARK = ".tmp-"
+TEMP_MARK = _atomic.TEMP_MARK
 
-LIGHTFIELD_SUFFIXES = {".tif", ".tiff", ".zarr"}
 IMAGE_SUFFIXES = {".tif", ".tiff", ".png"}
 
 
@@ -79,7 +83,7 @@ def check_output(path, overwrite=False):
     """
     path = Path(path)
     if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path}: output exists; pass --overwrite (overwrite=True) to replace it")
+        raise OutputExistsError(f"{path}: output exists; pass overwrite=True to replace it")
     if not path.parent.is_dir():
         raise ParameterError(f"{path}: the output folder {path.parent} does not exist; create it first")
     return path
@@ -108,52 +112,34 @@ def check_not_inputs(outputs, inputs):
                 raise ParameterError(f"{output}: inside the input folder {given}; write the output elsewhere")
 
 
-def _temporary_name(path):
-    return path.with_name(f".{path.name}{TEMP_MARK}{uuid.uuid4().hex[:12]}{path.suffix}")
-
-
 def is_temporary(path):
     """True if ``path`` is a temporary name made by :func:`atomic_output`."""
-    name = Path(path).name
-    return name.startswith(".") and TEMP_MARK in name
+    return _atomic.is_temporary(path)
 
 
 def remove_temporaries(folder):
-    """Remove temporaries left in ``folder`` by writers that were killed.
+    """Remove every temporary in ``folder`` left by writers that were killed.
 
-    Only call it when no writer is running in ``folder``.
+    Only call it when no writer is running in ``folder``; a backup of an
+    output whose replacement was cut short is put back, not removed.
+    :func:`atomic_output` itself removes the temporaries of dead writers of
+    its own target whenever it runs.
 
     Returns
     -------
     list of Path
         What was removed.
     """
-    removed = []
-    for path in Path(folder).iterdir():
-        if is_temporary(path):
-            _remove(path)
-            removed.append(path)
-    return removed
+    return _atomic.remove_all(folder)
 
 
-def _remove(path):
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
-
-
-def _replace(tmp, path):
-    """Move ``tmp`` onto ``path``; a folder target is moved aside first."""
-    if path.is_dir() and not path.is_symlink():
-        # os.replace cannot replace a non-empty folder: move the old one aside.
-        old = path.with_name(f".{path.name}{TEMP_MARK}old-{uuid.uuid4().hex[:12]}")
-        os.replace(path, old)
-        os.replace(tmp, path)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(tmp, path)
+def _short_write(exc, path):
+    """Say what a write that stopped short without an error number means (numpy's ``tofile``)."""
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return str(exc)
+    return f"the write stopped short ({exc}); {describe_bytes(free)} left on its disk"
 
 
 @contextlib.contextmanager
@@ -185,17 +171,22 @@ def atomic_output(path, overwrite=False):
     'hello'
     """
     path = check_output(path, overwrite)
-    tmp = _temporary_name(path)
+    _atomic.remove_stale(path.parent, path.name)
+    tmp = _atomic.temporary_name(path)
     try:
         yield tmp
         if not tmp.exists():
             raise RuntimeError(f"the writer of {path} wrote nothing")
         if path.exists() and not overwrite:
-            raise OutputExistsError(f"{path}: output appeared while writing; pass --overwrite to replace it")
-        _replace(tmp, path)
+            raise OutputExistsError(f"{path}: output appeared while writing; pass overwrite=True to replace it")
+        _atomic.replace(tmp, path)
+    except OSError as exc:
+        if exc.filename is None:  # a full disk deep in a writer names no file: name the output
+            raise OSError(exc.errno, exc.strerror or _short_write(exc, path), str(path)) from exc
+        raise
     finally:
-        if tmp.exists():
-            _remove(tmp)
+        if tmp.exists() or tmp.is_symlink():
+            _atomic.discard(tmp)
 
 
 # -- JSON ---------------------------------------------------------------------
@@ -299,10 +290,9 @@ def write_png(path, image, overwrite=False, zoom=1, **preview):
     import imageio.v3 as iio
 
     pixels = image if np.asarray(image).dtype == np.uint8 else to_preview(image, **preview)
-    zoom = int(zoom)
-    if zoom < 1:
-        raise ParameterError(f"zoom must be a whole number >= 1, got {zoom}")
+    zoom = _validate.integer_at_least("zoom", zoom, 1)
     if zoom > 1:
+        _budget.check(np.asarray(pixels).nbytes * zoom**2, f"zoom={zoom}: the enlarged preview")
         pixels = np.repeat(np.repeat(pixels, zoom, axis=0), zoom, axis=1)
     with atomic_output(path, overwrite) as tmp:
         iio.imwrite(tmp, pixels, extension=".png")
@@ -433,136 +423,58 @@ def _write_hyperstack(path, lf, header, overwrite):
     return path
 
 
-def _require_zarr():
-    try:
-        import zarr
-    except ImportError as exc:  # pragma: no cover - depends on the installation
-        raise ParameterError(
-            "writing or reading .zarr needs zarr: pip install 'napari-lfalias[dask]'"
-        ) from exc
-    return zarr
+def _stop_cleanly(work):
+    """Run ``work(stop)`` in a thread; on Ctrl-C set ``stop``, wait for it to end, then re-raise.
+
+    zarr writes on its own event-loop thread: an interrupt that unwinds the
+    caller while chunks are in flight leaves them writing into a temporary
+    store that is being removed (and asyncio complaining at exit). ``work``
+    checks ``stop`` between views, so the wait is at most one view.
+    """
+    stop, done = threading.Event(), threading.Event()
+    failure = []
+
+    def run():
+        try:
+            work(stop)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            failure.append(exc)
+        finally:
+            done.set()
+
+    # Waited on through an Event: an interrupted Thread.join can mark a running thread stopped.
+    threading.Thread(target=run, name="lfalias-zarr-writer", daemon=True).start()
+    interrupted = None
+    while not done.is_set():
+        try:
+            done.wait(0.05)
+        except KeyboardInterrupt as exc:
+            interrupted = exc
+            stop.set()
+    if interrupted is not None:
+        raise interrupted
+    if failure:
+        raise failure[0]
 
 
 def _write_zarr(path, lf, header, overwrite):
-    zarr = _require_zarr()
+    zarr = require_zarr()
     data = np.asarray(lf.data, np.float32)
-    with atomic_output(path, overwrite) as tmp:
+    arrays = [("views", data)] + ([("weights", lf.weights.astype(np.float32))] if lf.weights is not None else [])
+
+    def write(tmp, stop):
         group = zarr.open_group(str(tmp), mode="w")
-        views = group.create_array("views", shape=data.shape, dtype="float32", chunks=(1, 1) + data.shape[2:])
-        views[...] = data
-        if lf.weights is not None:
-            weights = group.create_array(
-                "weights", shape=lf.weights.shape, dtype="float32", chunks=(1, 1) + lf.weights.shape[2:]
-            )
-            weights[...] = lf.weights
+        for name, array in arrays:
+            # Every chunk stored, zeros too: a missing chunk then always means damage (io_read).
+            stored = group.create_array(name, shape=array.shape, dtype="float32", chunks=(1, 1) + array.shape[2:],
+                                        config={"write_empty_chunks": True})
+            for u, v in np.ndindex(*array.shape[:2]):  # one chunk per call: nothing left in flight
+                if stop.is_set():
+                    return
+                stored[u, v] = array[u, v]
         group.attrs.update({"lfalias": header})
+
+    with atomic_output(path, overwrite) as tmp:
+        _stop_cleanly(lambda stop: write(tmp, stop))
     return path
 
-
-def _hyperstack_header(path):
-    import tifffile
-
-    try:
-        with tifffile.TiffFile(path) as tif:
-            info = (tif.imagej_metadata or {}).get("Info")
-    except (OSError, ValueError, tifffile.TiffFileError):
-        return None
-    if not info:
-        return None
-    try:
-        header = json.loads(info)
-    except ValueError:
-        return None
-    return header if isinstance(header, dict) and header.get("format") == FORMAT_NAME else None
-
-
-def _zarr_header(path):
-    if not (Path(path) / "zarr.json").exists() and not (Path(path) / ".zgroup").exists():
-        return None
-    zarr = _require_zarr()
-    try:
-        header = dict(zarr.open_group(str(path), mode="r").attrs).get("lfalias")
-    except Exception:  # noqa: BLE001 - any unreadable store is "not ours"
-        return None
-    return header if isinstance(header, dict) and header.get("format") == FORMAT_NAME else None
-
-
-def is_lightfield_file(path):
-    """Return the JSON header if ``path`` is a light field written here, else ``None``."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".zarr" and path.is_dir():
-        return _zarr_header(path)
-    if suffix in (".tif", ".tiff") and path.is_file():
-        return _hyperstack_header(path)
-    return None
-
-
-def _restore_meta(meta):
-    """Turn ``{"__json__": "GridModel", ...}`` entries back into objects where possible."""
-    out = {}
-    for key, value in (meta or {}).items():
-        if isinstance(value, dict) and value.get("__json__") == "GridModel":
-            try:
-                from .decoders.lenslet import GridModel
-
-                value = GridModel.from_json(json.dumps(value["value"]))
-            except (ImportError, AttributeError):
-                value = value["value"]
-        out[key] = value
-    return out
-
-
-def read_lightfield(path, lazy=False):
-    """Read a light field written by :func:`write_lightfield`.
-
-    Parameters
-    ----------
-    path : str or Path
-        A ``.tif``/``.tiff`` hyperstack or a ``.zarr`` store.
-    lazy : bool
-        For zarr: keep the views as a dask array read on demand.
-
-    Returns
-    -------
-    LightField
-
-    Raises
-    ------
-    DecodeError
-        If ``path`` is not a light field written by napari-lfalias.
-    """
-    from .lightfield import LightField
-
-    path = Path(path)
-    header = is_lightfield_file(path)
-    if header is None:
-        raise DecodeError(
-            f"{path}: not a light field written by napari-lfalias (`lfalias convert` makes one)"
-        )
-    if path.suffix.lower() == ".zarr":
-        zarr = _require_zarr()
-        group = zarr.open_group(str(path), mode="r")
-        if lazy:
-            import dask.array as da
-
-            data = da.from_zarr(group["views"])
-        else:
-            data = group["views"][...]
-        weights = group["weights"][...] if "weights" in group else None
-    else:
-        import tifffile
-
-        n_rows, n_cols, height, width, n_channels = header["shape"]
-        planes = n_channels + bool(header["has_weights"])
-        pixels = tifffile.imread(path)  # ImageJ drops axes of length 1: reshape, never trust ndim
-        if pixels.size != n_rows * n_cols * planes * height * width:
-            raise DecodeError(f"{path}: header says shape {header['shape']}, the file holds {pixels.shape}")
-        stack = np.moveaxis(pixels.reshape(n_rows, n_cols, planes, height, width), 2, -1)
-        weights = stack[..., -1] if header["has_weights"] else None
-        data = stack[..., :-1] if header["has_weights"] else stack
-    if list(data.shape) != header["shape"]:
-        raise DecodeError(f"{path}: header says shape {header['shape']}, the data have {list(data.shape)}")
-    meta = _restore_meta(header.get("meta"))
-    meta.setdefault("source", str(path))
-    return LightField(data, np.asarray(header["positions"]), meta, weights=weights)

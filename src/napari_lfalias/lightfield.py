@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import ParameterError
+from .errors import NonFiniteError, ParameterError
 
 __all__ = ["LightField", "regular_positions", "REC709"]
 
@@ -35,10 +35,18 @@ def _is_lazy(array):
     return not isinstance(array, np.ndarray) and hasattr(array, "compute")
 
 
+def _as_array(name, value, dtype=None):
+    """``np.asarray(value, dtype)``, or a ParameterError naming ``name`` for ragged or non-numeric input."""
+    try:
+        return np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be a regular array of numbers; {' '.join(str(exc).split())}") from exc
+
+
 def _as_float32_views(data):
     """Return ``data`` as a 5-D float32 array (numpy or dask), ints scaled to [0, 1]."""
     if not _is_lazy(data):
-        data = np.asarray(data)
+        data = _as_array("data", data)
     if data.ndim == 4:
         data = data[..., None]
     if data.ndim != 5:
@@ -80,7 +88,8 @@ class LightField:
         Free-form metadata (source, ground-truth disparity, grid model, ...).
     nonfinite : {"raise", "mask"}
         What to do with NaN or Inf samples: raise a ``ParameterError``
-        (default), or give them zero weight (see ``weights``).
+        (default), or give them zero weight (see ``weights``). Lazy data
+        are checked when they are computed (:meth:`compute`).
     weights : array_like, shape (U, V, Y, X), optional
         Validity weight of each sample in [0, 1] (for example vignetting
         in a lenslet decode). Weight 0 means "not observed". ``None`` means
@@ -107,7 +116,7 @@ class LightField:
         n_rows, n_cols = data.shape[:2]
         if positions is None:
             positions = regular_positions(n_rows, n_cols)
-        positions = np.asarray(positions, dtype=np.float64)
+        positions = _as_array("positions", positions, np.float64)
         if positions.shape != (n_rows, n_cols, 2):
             raise ParameterError(
                 f"positions must have shape (U, V, 2) = ({n_rows}, {n_cols}, 2) to match data, "
@@ -116,7 +125,7 @@ class LightField:
         if not np.all(np.isfinite(positions)):
             raise ParameterError("positions must be finite")
         if weights is not None:
-            weights = np.asarray(weights, dtype=np.float32)
+            weights = _as_array("weights", weights, np.float32)
             if weights.shape != tuple(data.shape[:4]):
                 raise ParameterError(
                     f"weights must have shape (U, V, Y, X) = {tuple(data.shape[:4])}, got {weights.shape}"
@@ -125,11 +134,12 @@ class LightField:
                 raise ParameterError("weights must be finite and lie in [0, 1]")
         if nonfinite not in ("raise", "mask"):
             raise ParameterError(f"nonfinite must be 'raise' or 'mask', got {nonfinite!r}")
+        self._nonfinite = nonfinite
         if not _is_lazy(data):
             bad = ~np.isfinite(data)
             if bad.any():
                 if nonfinite == "raise":
-                    raise ParameterError(
+                    raise NonFiniteError(
                         f"data holds {int(bad.sum())} NaN/Inf samples; clean them, or pass "
                         "nonfinite='mask' to give them zero weight"
                     )
@@ -143,7 +153,7 @@ class LightField:
         self.meta = dict(meta) if meta else {}
 
     @classmethod
-    def _derived(cls, data, positions, meta=None, weights=None):
+    def _derived(cls, data, positions, meta=None, weights=None, nonfinite="raise"):
         """A light field made by this package from a validated one: no checks, no copies.
 
         ``data`` must be a 5-D float32 array (numpy or dask) of finite
@@ -152,6 +162,7 @@ class LightField:
         lf = cls.__new__(cls)
         lf.data, lf.positions, lf.weights = data, positions, weights
         lf.meta = dict(meta) if meta else {}
+        lf._nonfinite = nonfinite
         return lf
 
     # -- shape helpers -------------------------------------------------
@@ -186,14 +197,23 @@ class LightField:
         return _is_lazy(self.data)
 
     def compute(self):
-        """Return a light field whose data are an in-memory numpy array."""
+        """Return a light field whose data are an in-memory numpy array.
+
+        NaN and Inf samples are checked now, as ``nonfinite`` said when the
+        light field was made (refused, or given weight 0).
+        """
         if not self.is_lazy:
             return self
-        return LightField(np.asarray(self.data.compute()), self.positions, self.meta, weights=self.weights)
+        return LightField(np.asarray(self.data.compute()), self.positions, self.meta, weights=self.weights,
+                          nonfinite=self._nonfinite)
 
     def views(self):
-        """Return the data as ``(n, Y, X, C)`` in-memory views, row-major over (U, V)."""
-        data = np.asarray(self.data.compute() if self.is_lazy else self.data)
+        """Return the data as ``(n, Y, X, C)`` in-memory views, row-major over (U, V).
+
+        For lazy data, use ``compute().views()`` with ``compute().flat_weights()``
+        when NaN samples may have been masked (their weights are known only then).
+        """
+        data = np.asarray(self.compute().data)
         return data.reshape((-1,) + data.shape[2:])
 
     def flat_positions(self):
@@ -210,7 +230,7 @@ class LightField:
             return self
         data = self.data if self.is_lazy else np.asarray(self.data)
         lum = (data @ REC709)[..., None]
-        return LightField._derived(lum, self.positions, self.meta, self.weights)
+        return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
 
     def subset(self, rows=slice(None), cols=slice(None)):
         """Return the light field of a sub-grid of views, keeping their positions.
@@ -224,7 +244,7 @@ class LightField:
         positions = self.positions[rows][:, cols]
         weights = None if self.weights is None else self.weights[rows][:, cols]
         meta = dict(self.meta)
-        return LightField(data, positions, meta, weights=weights)
+        return LightField(data, positions, meta, weights=weights, nonfinite=self._nonfinite)
 
     def __repr__(self):
         lazy = ", lazy" if self.is_lazy else ""

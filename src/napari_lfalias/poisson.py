@@ -75,6 +75,7 @@ import scipy.fft
 
 from . import _poisson_masked as _masked
 from . import _validate
+from ._numerics import unit_scale
 from .errors import ParameterError
 
 __all__ = [
@@ -451,6 +452,11 @@ def fuse_gradients(base, sources, labels, *, method="auto", tol=1e-5, screen=0.0
     labels = _labels(labels, base.shape[:2], len(checked))
     method, tol = _check_method(method), _tolerance(tol)
     screen = _validate.non_negative_float("screen", screen)
+    scale = unit_scale(max(float(np.abs(image).max(initial=0.0)) for image in [base, *checked]))
+    if scale != 1.0:  # the fusion is linear: solve near 1, where float32 residuals cannot overflow
+        fused = fuse_gradients(base * np.float32(scale), [source * np.float32(scale) for source in checked], labels,
+                               method=method, tol=tol, screen=screen)
+        return _restore(fused / np.float32(scale), flat)
 
     def rhs(box):
         # the divergence of grad(base) - guidance (on the labelled pixels, unless the DCT solves them all)

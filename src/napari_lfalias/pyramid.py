@@ -22,7 +22,10 @@ from . import _validate
 from .errors import ParameterError
 from .lightfield import LightField
 
-__all__ = ["pyr_down", "pyr_up", "gaussian_pyramid", "lightfield_pyramid", "level_shape"]
+__all__ = ["pyr_down", "pyr_up", "gaussian_pyramid", "lightfield_pyramid", "level_shape", "MAX_LEVEL"]
+
+#: The coarsest level any function takes: a 2**16-pixel blur, beyond the side of any image.
+MAX_LEVEL = 16
 
 
 def level_shape(shape, level):
@@ -164,7 +167,7 @@ def gaussian_pyramid(image, max_level):
     >>> [level.shape for level in gaussian_pyramid(np.zeros((9, 16)), 2)]
     [(9, 16), (5, 8), (3, 4)]
     """
-    max_level = _validate.integer_at_least("max_level", max_level, 0)
+    max_level = _validate.integer_between("max_level", max_level, 0, MAX_LEVEL)
     levels = [np.asarray(image, np.float32)]
     for _ in range(max_level):
         levels.append(pyr_down(levels[-1])[0])
@@ -199,7 +202,7 @@ def lightfield_pyramid(lf, max_level):
     """
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
-    max_level = _validate.integer_at_least("max_level", max_level, 0)
+    max_level = _validate.integer_between("max_level", max_level, 0, MAX_LEVEL)
     if lf.is_lazy:
         lf = lf.compute()
     levels = [lf]

@@ -62,7 +62,7 @@ from .errors import ParameterError
 from .in_focus import in_focus_layer
 from .poisson import _labels, fuse_gradients
 from .presets import resolve
-from .pyramid import level_shape, pyr_down, pyr_up
+from .pyramid import MAX_LEVEL, level_shape, pyr_down, pyr_up
 
 __all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels", "levels_from_disparity", "SOLVERS", "SCREEN", "MAX_LEVEL"]
 
@@ -70,8 +70,6 @@ __all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels"
 SOLVERS = ("auto", "lu", "multigrid", "dct")
 #: Default weight of the data term of the screened fusion (module notes).
 SCREEN = 0.25
-#: The coarsest level :func:`fuse_levels` renders (a 2**16-pixel blur).
-MAX_LEVEL = 16
 
 
 @dataclass(frozen=True)
@@ -101,7 +99,7 @@ class Reduction:
 
 
 def _check(max_level, solver, screen, keep_in_focus):
-    max_level = _validate.integer_at_least("max_level", max_level, 0)
+    max_level = _validate.integer_between("max_level", max_level, 0, MAX_LEVEL)
     _validate.one_of("solver", solver, SOLVERS)
     _validate.boolean("keep_in_focus", keep_in_focus)
     return max_level, _validate.non_negative_float("screen", screen)
@@ -281,9 +279,7 @@ def levels_from_disparity(disparity, slope, spacing=1.0, max_level=3):
     disparity = _disparity_map(disparity)
     slope = _validate.finite_float("slope", slope)
     spacing = _validate.positive_float("spacing", spacing)
-    max_level = _validate.integer_at_least("max_level", max_level, 0)
-    if max_level > MAX_LEVEL:
-        raise ParameterError(f"max_level must be at most {MAX_LEVEL}, got {max_level}")
+    max_level = _validate.integer_between("max_level", max_level, 0, MAX_LEVEL)
     shift = np.abs(disparity - slope) * spacing
     with np.errstate(divide="ignore"):
         level = np.ceil(np.log2(shift))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
+from ..cli import as_flags
 from .commands import reduce_options
 from .progress import Progress
 
@@ -19,8 +21,9 @@ def run_batch_command(args, stream):
 
     def progress(source, status, detail):
         bar.update()
-        if status == "failed":
-            failures.append(f"{source}: {detail}")
+        if status == "failed":  # the detail names the input itself where it comes from a reader
+            named = detail.startswith((source, str(Path(source).absolute())))
+            failures.append(as_flags(detail if named else f"{source}: {detail}"))
 
     reduction = reduce_options(args) if args.task == "reduce" else {}
     report = run_batch(

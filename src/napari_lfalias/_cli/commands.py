@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import io_write
-from .._inputs import check_reduce_options, open_input
+from .._inputs import check_reduce_options, open_input, view_grid
 from .._validate import finite_float
 from ..errors import ParameterError
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
@@ -47,12 +47,13 @@ def thresholded_cv(detection):
 
 def given_inputs(args):
     """The files and folders the user gave a command (never written to)."""
-    return [args.input, args.white, args.dark, args.grid]
+    grid_file = args.grid if args.grid is not None and view_grid(args.grid) is None else None
+    return [args.input, args.white, args.dark, grid_file]
 
 
 def _open(args, stages):
     with stages("load"):
-        return open_input(args.input, white=args.white, dark=args.dark, grid=args.grid)
+        return open_input(args.input, white=args.white, dark=args.dark, grid=args.grid, nonfinite=args.nonfinite)
 
 
 def _image_range(image, args, stream):

@@ -42,7 +42,7 @@ def _disparity_facts(lf):
     return {"min": low, "max": high, "from": source}
 
 
-def describe(path, white=None, dark=None, grid=None):
+def describe(path, white=None, dark=None, grid=None, nonfinite=None):
     """Return the facts about ``path`` as a dict (what ``lfalias info --json`` prints)."""
     path = Path(path)
     if not path.exists():
@@ -59,11 +59,15 @@ def describe(path, white=None, dark=None, grid=None):
         return facts
     else:
         facts["format"] = "lenslet capture"
-    lf = open_input(path, white=white, dark=dark, grid=grid)
+    lf = open_input(path, white=white, dark=dark, grid=grid, nonfinite=nonfinite)
     source_format = lf.meta.get("format")
     if source_format:
         facts["source format"] = source_format
     facts["views"] = f"{lf.grid_shape[0]} x {lf.grid_shape[1]}"
+    missing = lf.meta.get("missing_views")
+    if missing:
+        facts["missing views"] = f"{len(missing)} of {lf.n_views} (weight 0): {', '.join(missing[:4])}" + (
+            f" and {len(missing) - 4} more" if len(missing) > 4 else "")
     facts["view size"] = f"{lf.image_shape[0]} x {lf.image_shape[1]} px, {lf.n_channels} channel(s)"
     span = np.ptp(lf.flat_positions(), axis=0)
     facts["aperture"] = f"{span[0]:g} x {span[1]:g} grid steps (y, x)"
@@ -88,7 +92,7 @@ def _print(facts, stream):
 
 def run_info(args, stream):
     """Print what ``args.input`` holds."""
-    facts = describe(args.input, args.white, args.dark, args.grid)
+    facts = describe(args.input, args.white, args.dark, args.grid, args.nonfinite)
     if args.json:
         stream.write(json.dumps(facts, indent=2, default=str) + "\n")
     else:

@@ -8,13 +8,15 @@ ground-truth disparity by :mod:`.hci`.
 
 from __future__ import annotations
 
+import math
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from .. import _validate
-from ..errors import DecodeError, ParameterError
+from .. import _budget, _validate
+from ..errors import DecodeError, LightFieldWarning, ParameterError
 from ..lightfield import LightField
 from .hci import hci_metadata
 from .images import image_header, read_image
@@ -24,7 +26,7 @@ __all__ = ["load_camera_array"]
 
 #: Reader threads: OpenCV and tifffile decode with the GIL released.
 _READ_THREADS = 2
-_ACCEPTED = ("grid", "lazy", "progress")
+_ACCEPTED = ("grid", "lazy", "progress", "nonfinite")
 
 
 def _describe(shape):
@@ -50,20 +52,39 @@ def _read_view(path, first_path, first_shape):
     return image
 
 
+def _first_present(paths):
+    return next(path for path in paths if path is not None)
+
+
+def _check_size(paths, grid_shape, first_shape):
+    """Refuse, from the first view's header, a light field beyond the memory budget (image bombs)."""
+    n_bytes = math.prod(grid_shape) * math.prod(first_shape) * 4
+    if any(path is None for path in paths):
+        n_bytes += math.prod(grid_shape) * math.prod(first_shape[:2]) * 4  # the weights
+    height, width, channels = first_shape
+    _budget.check(n_bytes, f"{_first_present(paths)}: {len(paths)} views of {width} x {height} x {channels} "
+                           "float32 (the size its header gives)", DecodeError)
+
+
 def _read_eager(paths, grid_shape, progress):
-    first = read_image(paths[0])
-    data = np.empty(tuple(grid_shape) + first.shape, np.float32)
+    first_path = _first_present(paths)
+    first_shape = image_header(first_path)
+    _check_size(paths, grid_shape, first_shape)
+    first = read_image(first_path)
+    _check_view(first_path, first.shape, first_path, first_shape)
+    data = np.zeros(tuple(grid_shape) + first.shape, np.float32)
     flat = data.reshape((-1,) + first.shape)
-    flat[0] = first
-    total = len(paths)
+    present = [i for i, path in enumerate(paths) if path is not None]
+    flat[present[0]] = first
+    total = len(present)
     if progress is not None:
         progress(1, total)
 
     def read_into(i):
-        flat[i] = _read_view(paths[i], paths[0], first.shape)
+        flat[i] = _read_view(paths[i], first_path, first.shape)
 
     with ThreadPoolExecutor(_READ_THREADS) as pool:
-        futures = [pool.submit(read_into, i) for i in range(1, total)]
+        futures = [pool.submit(read_into, i) for i in present[1:]]
         try:
             for done, future in enumerate(futures, start=2):
                 future.result()  # re-raises the first failure, in view order
@@ -82,19 +103,24 @@ def _read_lazy(paths, grid_shape, progress):
         from dask.base import tokenize
     except ImportError as exc:
         raise ParameterError("lazy=True needs dask: pip install 'napari-lfalias[dask]'") from exc
-    first_shape = image_header(paths[0])
-    for done, path in enumerate(paths, start=1):
-        _check_view(path, image_header(path), paths[0], first_shape)
+    first_path = _first_present(paths)
+    first_shape = image_header(first_path)
+    _check_size(paths, grid_shape, first_shape)
+    present = [path for path in paths if path is not None]
+    for done, path in enumerate(present, start=1):
+        _check_view(path, image_header(path), first_path, first_shape)
         if progress is not None:
-            progress(done, len(paths))
+            progress(done, len(present))
     n_cols = grid_shape[1]
 
     def read_block(block_info=None):
         u, v = block_info[None]["chunk-location"][:2]
-        image = _read_view(paths[u * n_cols + v], paths[0], first_shape)
-        return image[None, None]
+        path = paths[u * n_cols + v]
+        if path is None:  # a view missing from the folder: weight 0
+            return np.zeros((1, 1) + tuple(first_shape), np.float32)
+        return _read_view(path, first_path, first_shape)[None, None]
 
-    stamps = [(str(p), p.stat().st_mtime_ns, p.stat().st_size) for p in paths]
+    stamps = [(str(p), p.stat().st_mtime_ns, p.stat().st_size) if p is not None else None for p in paths]
     chunks = tuple((1,) * n for n in grid_shape) + tuple((n,) for n in first_shape)
     return da.map_blocks(
         read_block,
@@ -105,7 +131,28 @@ def _read_lazy(paths, grid_shape, progress):
     )
 
 
-def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options):
+def _missing_view_weights(layout, image_shape):
+    """Sample weights ``(U, V, Y, X)``: 0 for the views missing from the folder; ``None`` if none is."""
+    if not layout.missing:
+        return None
+    weights = np.ones(layout.grid_shape + tuple(image_shape), np.float32)
+    for u, v in layout.missing:
+        weights[u, v] = 0
+    return weights
+
+
+def _warn_missing(folder, layout):
+    labels = layout.meta["missing_views"]
+    shown = ", ".join(labels[:4]) + (f" and {len(labels) - 4} more" if len(labels) > 4 else "")
+    n_rows, n_cols = layout.grid_shape
+    warnings.warn(
+        f"{folder}: {len(labels)} of the {n_rows * n_cols} views of the {n_rows}x{n_cols} grid are missing "
+        f"({shown}); they are kept at their positions with weight 0",
+        LightFieldWarning, stacklevel=3,
+    )
+
+
+def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite="raise", **options):
     """Load a folder of views (one image file per view) as a light field.
 
     Parameters
@@ -127,6 +174,9 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options
     progress : callable, optional
         Called as ``progress(done, total)`` after each view is read (eager)
         or checked (lazy).
+    nonfinite : {"raise", "mask"}
+        NaN or Inf samples (float TIFF views): refuse them, or give them
+        weight 0 (see :class:`~napari_lfalias.LightField`).
 
     Returns
     -------
@@ -134,16 +184,22 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options
         ``data`` (U, V, Y, X, C) float32 in [0, 1] (8- and 16-bit images
         scaled by 255 and 65535; alpha dropped). ``meta`` holds ``"source"``,
         ``"format"`` (``"hci"``, ``"stanford"``, ``"indexed"``, ``"list"``),
-        ``"files"`` (row-major), and for HCI ``"hci"`` (the parameters),
-        ``"disparity"`` (ground truth in this package's sign) and
-        ``"disparity_range"``.
+        ``"files"`` (row-major, ``None`` for a missing view), and for HCI
+        ``"hci"`` (the parameters), ``"disparity"`` (ground truth in this
+        package's sign) and ``"disparity_range"``.
+
+        Views missing from a partial grid (the HCI training scenes are
+        often handed around as 33 of their 81 views) keep their positions
+        and get weight 0 in ``weights`` (zeros in ``data``); ``meta["missing_views"]``
+        names them and a :class:`~napari_lfalias.errors.LightFieldWarning` says so.
 
     Raises
     ------
     DecodeError
-        An empty folder, a folder without images, a missing or duplicate
-        view, views of mixed sizes or of mixed grey and colour, an
-        unreadable or truncated file.
+        An empty folder, a folder without images, a duplicate view or one
+        beyond the grid, views of mixed sizes or of mixed grey and colour,
+        an unreadable or truncated file, or views whose decoded size (from
+        their headers) exceeds the memory budget.
     ParameterError
         An unknown option or a malformed ``grid``.
 
@@ -174,8 +230,12 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, **options
     paths = layout.flat_paths()
     read = _read_lazy if lazy else _read_eager
     data = read(paths, layout.grid_shape, progress)
-    meta = {"source": str(folder), "format": layout.format, "files": [str(p) for p in paths]}
+    meta = {"source": str(folder), "format": layout.format,
+            "files": [str(p) if p is not None else None for p in paths]}
     meta.update(layout.meta)
     if layout.format == "hci":
         meta.update(hci_metadata(folder, layout.grid_shape, data.shape[2:4]))
-    return LightField(data, layout.positions, meta)
+    weights = _missing_view_weights(layout, data.shape[2:4])
+    if layout.missing:
+        _warn_missing(folder, layout)
+    return LightField(data, layout.positions, meta, weights=weights, nonfinite=nonfinite)

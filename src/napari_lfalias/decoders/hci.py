@@ -138,8 +138,8 @@ def _check_camera_count(params, grid_shape, cfg_path):
     expected = params.get("num_cams_y"), params.get("num_cams_x")
     if all(isinstance(n, float) for n in expected) and tuple(int(n) for n in expected) != tuple(grid_shape):
         raise DecodeError(
-            f"{cfg_path}: says {int(expected[0])}x{int(expected[1])} cameras but the folder holds a "
-            f"{grid_shape[0]}x{grid_shape[1]} grid of input_Cam*.png views; restore the missing views"
+            f"{cfg_path}: says {int(expected[0])}x{int(expected[1])} cameras but the views were read as a "
+            f"{grid_shape[0]}x{grid_shape[1]} grid (grid=); leave grid out to use the file's grid"
         )
 
 

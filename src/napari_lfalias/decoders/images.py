@@ -8,14 +8,23 @@ precision of 16-bit colour PNGs. Without OpenCV, imageio reads them, and a
 through tifffile. Any failure
 (missing file, unknown format, truncated data) becomes a
 :class:`~napari_lfalias.errors.DecodeError` naming the file.
+
+The size an image declares in its header is checked against the memory
+budget (:mod:`napari_lfalias._budget`) before its pixels are decoded: a
+small PNG or TIFF that declares a huge image (an image bomb) is refused
+without allocating it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from .. import _budget
 from ..errors import DecodeError
 
 __all__ = ["IMAGE_SUFFIXES", "read_image", "image_header", "is_image_file"]
@@ -65,11 +74,41 @@ def _to_unit_float(array):
     return array.astype(np.float32, copy=False)
 
 
+def _check_decoded_size(path, shape, itemsize):
+    """Refuse an image whose decoded pixels (and their float32 copy) exceed the memory budget."""
+    n_pixels = math.prod(int(n) for n in shape)
+    described = " x ".join(str(int(n)) for n in shape)
+    _budget.check(n_pixels * (int(itemsize) + 4), f"{path}: its header declares a {described} image, whose pixels",
+                  DecodeError)
+
+
+def _png_header_shape(raw):
+    """``((height, width, samples), bytes per sample)`` from a PNG's IHDR, or None if it has none."""
+    if raw[:8].tobytes() != _PNG_SIGNATURE or raw.size < 26 or raw[12:16].tobytes() != b"IHDR":
+        return None
+    width = int.from_bytes(raw[16:20].tobytes(), "big")
+    height = int.from_bytes(raw[20:24].tobytes(), "big")
+    samples = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}.get(int(raw[25]), 4)
+    return (height, width, samples), 2 if raw[24] == 16 else 1
+
+
+@contextlib.contextmanager
+def _pillow_header(path):
+    """``PIL.Image.open`` for the header only; its bomb warning is ours to give (the budget)."""
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        with Image.open(path) as image:
+            yield image
+
+
 def _read_tiff(path):
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
         page = tif.pages[0]
+        _check_decoded_size(path, page.shape, page.dtype.itemsize if page.dtype is not None else 8)
         array = page.asarray()
         axes = page.axes
     if axes.startswith("S") and array.ndim == 3:  # planar RGB
@@ -106,6 +145,13 @@ def _is_16bit_colour_png(raw):
 def _decode_png_jpeg(path):
     """Decode with OpenCV; fall back to imageio, which decodes or says why not."""
     raw = np.fromfile(path, np.uint8)
+    declared = _png_header_shape(raw)
+    if declared is not None:
+        _check_decoded_size(path, *declared)
+    else:  # JPEG, BMP: the size from the header, through Pillow
+        with _pillow_header(path) as image:
+            width, height = image.size
+            _check_decoded_size(path, (height, width, len(image.getbands())), 2)
     grey = raw[:8].tobytes() == _PNG_SIGNATURE and raw.size > 25 and raw[25] in _PNG_GREY_TYPES
     cv2 = _opencv()
     if cv2 is not None and _looks_complete(raw):
@@ -206,9 +252,11 @@ def image_header(path):
                 shape = dict(zip(page.axes, page.shape))
             samples = shape.get("S", 1)
             return shape["Y"], shape["X"], 3 if samples >= 3 else 1
-        from PIL import Image
-
-        with Image.open(path) as image:
+        declared = _png_header_shape(np.fromfile(path, np.uint8, count=26))
+        if declared is not None:
+            (height, width, samples), _ = declared
+            return height, width, 1 if samples <= 2 else 3
+        with _pillow_header(path) as image:
             width, height = image.size
             return height, width, _pil_channels(image)
     except Exception as exc:

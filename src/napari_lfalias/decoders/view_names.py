@@ -13,6 +13,14 @@ Layouts, tried in this order:
 ``indexed``
     Names whose stem ends with two integer groups (``scene_03_04.png``,
     ``view_3_4.tif``): row and column, 0- or 1-based.
+
+A grid may be partial: the HCI training scenes are often handed around as
+33 of their 81 views (the cross, the diagonals and the centre 3x3). The
+views the names place on the grid are kept at their true positions; the
+missing ones are ``None`` in :attr:`ViewLayout.paths` (the loader gives
+them weight 0). The grid is what the names imply (the largest row and
+column), ``num_cams_x``/``num_cams_y`` of an HCI ``parameters.cfg``, or
+``grid=(U, V)``.
 """
 
 from __future__ import annotations
@@ -45,8 +53,9 @@ class ViewLayout:
 
     Attributes
     ----------
-    paths : list of list of Path
-        ``paths[u][v]`` is the file of view ``(u, v)``.
+    paths : list of list of Path or None
+        ``paths[u][v]`` is the file of view ``(u, v)``, ``None`` for a view
+        missing from the folder.
     format : str
         ``"hci"``, ``"stanford"``, ``"indexed"`` or ``"list"``.
     positions : ndarray, shape (U, V, 2), or None
@@ -67,8 +76,13 @@ class ViewLayout:
         return len(self.paths), len(self.paths[0])
 
     def flat_paths(self):
-        """The files row-major over ``(u, v)``."""
+        """The files row-major over ``(u, v)`` (``None`` for a missing view)."""
         return [path for row in self.paths for path in row]
+
+    @property
+    def missing(self):
+        """``(u, v)`` of every view missing from the folder, row-major."""
+        return [(u, v) for u, row in enumerate(self.paths) for v, path in enumerate(row) if path is None]
 
 
 def natural_key(name):
@@ -112,6 +126,12 @@ def _assemble(entries, folder, grid_shape, label):
     """Place ``(row, col, path)`` entries (0-based) on a ``grid_shape`` grid.
 
     ``label(row, col)`` names a view in messages the way the files do.
+
+    Returns
+    -------
+    paths : list of list of Path or None
+    meta : dict
+        ``"missing_views"`` (labels, row-major) when views are missing.
     """
     n_rows, n_cols = grid_shape
     paths = [[None] * n_cols for _ in range(n_rows)]
@@ -133,27 +153,48 @@ def _assemble(entries, folder, grid_shape, label):
             "check grid=(U, V) or remove them"
         )
     missing = [label(u, v) for u in range(n_rows) for v in range(n_cols) if paths[u][v] is None]
-    if missing:
-        raise DecodeError(
-            f"{folder}: {len(missing)} of {n_rows * n_cols} views of the {n_rows}x{n_cols} grid are missing: "
-            f"{_shown(missing)}; restore them (or pass grid=(U, V) for a smaller grid)"
-        )
+    return paths, ({"missing_views": missing} if missing else {})
+
+
+def _hci_grid(folder):
+    """``(U, V)`` from ``num_cams_y``/``num_cams_x`` of the folder's ``parameters.cfg``, if it says."""
+    from .hci import PARAMETERS_NAME, read_parameters_cfg
+
+    cfg = Path(folder) / PARAMETERS_NAME
+    if not cfg.is_file():
+        return None
+    params = read_parameters_cfg(cfg)
+    counts = params.get("num_cams_y"), params.get("num_cams_x")
+    if all(isinstance(n, float) and n >= 1 and n == int(n) for n in counts):
+        return int(counts[0]), int(counts[1])
+    return None
     return paths
 
 
 def _hci_layout(folder, matches, grid):
     indices = {path: int(match.group(1)) for path, match in matches}
+    given = grid is not None
+    grid = grid or _hci_grid(folder)
     if grid is None:
         side = math.isqrt(max(indices.values())) + 1  # ceil(sqrt(max + 1)): a square grid
         grid = (side, side)
-    n_cols = grid[1]
+    n_rows, n_cols = grid
+    beyond = sorted((path for path, index in indices.items() if index >= n_rows * n_cols), key=indices.get)
+    if beyond:
+        source = "grid=" + str(tuple(grid)) if given else f"{folder / 'parameters.cfg'}"
+        raise DecodeError(
+            f"{folder}: {_shown(p.name for p in beyond)} number views beyond the {n_rows * n_cols} of the "
+            f"{n_rows}x{n_cols} grid of {source}; HCI names number the views row by row, so the largest "
+            f"number sets the grid: leave grid out (missing views get weight 0), or fix it"
+        )
     entries = [(index // n_cols, index % n_cols, path) for path, index in indices.items()]
-    width = max(3, len(str(grid[0] * n_cols - 1)))
+    width = max(3, len(str(n_rows * n_cols - 1)))
 
     def label(u, v):
         return f"input_Cam{u * n_cols + v:0{width}d}.png"
 
-    return ViewLayout(_assemble(entries, folder, grid, label), "hci")
+    paths, meta = _assemble(entries, folder, grid, label)
+    return ViewLayout(paths, "hci", meta=meta)
 
 
 def stanford_positions(coords):
@@ -219,15 +260,33 @@ def _stanford_layout(folder, matches, grid):
         entries.append((row, col, path))
         numbers[path] = (float(match.group(3)), float(match.group(4)))
     grid_shape = _indexed_shape(entries, grid, folder)
-    paths = _assemble(entries, folder, grid_shape, lambda u, v: f"out_{u:02d}_{v:02d}_*.png")
-    coords = np.array([[numbers[path] for path in row] for row in paths])
+    paths, missing = _assemble(entries, folder, grid_shape, lambda u, v: f"out_{u:02d}_{v:02d}_*.png")
+    coords = _fill_missing_coords(paths, numbers)
     positions, info = stanford_positions(coords)
+    info.update(missing)
     info["camera_coordinates"] = coords
     info["positions_note"] = (
         "from the camera coordinates in the file names: divided by the median spacing of adjacent "
         "views, centred on 0, signs chosen so that positions increase with RR and CC"
     )
     return ViewLayout(paths, "stanford", positions, info)
+
+
+def _fill_missing_coords(paths, numbers):
+    """Camera coordinates on the grid; a missing view's from the affine fit of the others to (row, col)."""
+    n_rows, n_cols = len(paths), len(paths[0])
+    coords = np.full((n_rows, n_cols, 2), np.nan)
+    for u, row in enumerate(paths):
+        for v, path in enumerate(row):
+            if path is not None:
+                coords[u, v] = numbers[path]
+    present = ~np.isnan(coords[..., 0])
+    if not present.all():
+        rows, cols = np.indices((n_rows, n_cols))
+        design = np.stack([rows, cols, np.ones_like(rows)], axis=-1).astype(np.float64)
+        fit = np.linalg.lstsq(design[present], coords[present], rcond=None)[0]
+        coords[~present] = design[~present] @ fit
+    return coords
 
 
 def _indexed_shape(entries, grid, folder):
@@ -261,10 +320,11 @@ def _indexed_layout(folder, images):
     def label(u, v):
         return f"row {u + base}, column {v + base} (like {example.name})"
 
-    meta = {"index_base": base}
+    paths, missing = _assemble(entries, folder, grid_shape, label)
+    meta = {"index_base": base, **missing}
     if ignored:
         meta["ignored_files"] = [str(path) for path in ignored]
-    return ViewLayout(_assemble(entries, folder, grid_shape, label), "indexed", meta=meta)
+    return ViewLayout(paths, "indexed", meta=meta)
 
 
 def _list_layout(folder, images, grid):
@@ -292,7 +352,9 @@ def find_views(folder, grid=None):
     grid : (int, int), optional
         ``(U, V)``. Required for names that carry no indices (the images are
         then taken in natural sort order, row-major); for HCI names it sets
-        a non-square grid; for Stanford names it must match the indices.
+        a non-square grid (default: ``parameters.cfg``'s camera counts, else
+        the square the largest number implies); for Stanford names it must
+        match the indices.
 
     Returns
     -------
@@ -301,7 +363,7 @@ def find_views(folder, grid=None):
     Raises
     ------
     DecodeError
-        Empty folder, no images, a missing or duplicate view.
+        Empty folder, no images, a duplicate view, a view beyond the grid.
     ParameterError
         A malformed ``grid``, or one that contradicts the names.
 

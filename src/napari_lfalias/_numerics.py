@@ -1,0 +1,25 @@
+"""Scaling data so that float32 arithmetic neither overflows nor underflows."""
+
+import math
+
+__all__ = ["unit_scale", "SAFE_PEAKS"]
+
+#: Peaks within which float32 squares and sums of the data stay far from overflow and underflow.
+SAFE_PEAKS = (2.0**-16, 2.0**16)
+
+
+def unit_scale(peak):
+    """A power of two that brings ``peak`` near 1; 1 where it is safe already (or 0, or not finite).
+
+    A power of two is exact in float32 (short of subnormals), so results
+    scaled back are those of the unscaled arithmetic, where that does not
+    overflow.
+
+    Examples
+    --------
+    >>> unit_scale(3.0), unit_scale(1e30) == 2.0**-100
+    (1.0, True)
+    """
+    if not 0 < peak < math.inf or SAFE_PEAKS[0] <= peak <= SAFE_PEAKS[1]:
+        return 1.0
+    return 2.0 ** -round(math.log2(peak))

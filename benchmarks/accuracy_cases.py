@@ -62,45 +62,61 @@ def _synthetic(name, split, scene, slopes, notes="", **camera):
 
 
 def synthetic_cases(size=256):
-    """The synthetic cases, tune and holdout (see the module notes)."""
+    """The synthetic cases, tune and holdout (see the module notes).
+
+    Angular aliasing shows where the copies of a textured surface are far
+    apart (ghost spacing ``|d - slope| * spacing`` of 5 px or more) and the
+    texture has edges or lines: the cases put high-contrast line, tile,
+    brick and stripe textures at such residual disparities, next to smooth
+    and fine noise, flat walls and in-focus layers that must come back
+    unchanged.
+    """
     cases = []
     # -- chosen on --------------------------------------------------------------------------
-    scene = layered_scene([(3.0, "noise", (0.25, 0.65, 0.2, 0.55)), (0.5, "stripes", (0.45, 0.85, 0.5, 0.9)),
-                           (-2.0, "bricks", None)], n_views=8, size=size, seed=1, name="three layers")
-    cases.append(_synthetic("three layers, 8x8", "tune", scene, [3.0, 0.5, -2.0],
-                            "noise occluder, stripes mid-plane, bricks wall"))
-    scene = layered_scene([(2.0, "checker", (0.3, 0.75, 0.25, 0.7)), (-1.5, "fine", None)], n_views=5,
-                          size=size, seed=2, name="checker before fine noise")
-    cases.append(_synthetic("checker over fine noise, 5x5, vignetted + noise", "tune", scene, [2.0, -1.5, 0.25],
+    scene = layered_scene([(5.0, "tiles", (0.2, 0.6, 0.15, 0.5)), (1.0, "lines", (0.45, 0.85, 0.5, 0.9)),
+                           (-4.0, "bricks", None)], n_views=8, size=size, seed=1, name="three layers")
+    cases.append(_synthetic("tiles, lines, bricks, 8x8", "tune", scene, [5.0, 1.0, -4.0],
+                            "tile occluder, line-textured mid-plane, brick wall"))
+    scene = layered_scene([(4.0, "lines", (0.3, 0.75, 0.25, 0.7)), (-3.0, "noise", None)], n_views=5,
+                          size=size, seed=2, name="lines before noise")
+    cases.append(_synthetic("lines over noise, 5x5, vignetted + noise", "tune", scene, [4.0, -3.0, 0.5],
                             "calibrated vignetting (decoder with a white image), read + shot noise",
                             vignetting=1.0, read_noise=0.004, shot_noise=0.01, calibrated=True, seed=2))
-    scene = layered_scene([(1.5, "smooth", (0.2, 0.7, 0.3, 0.8)), (-0.8, "noise", None)], n_views=9,
-                          size=size, seed=3, name="smooth before noise")
-    cases.append(_synthetic("smooth over noise, 9x9", "tune", scene, [1.5, -0.8], "mild disparities, dense grid"))
-    scene = layered_scene([(4.0, "grey", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3,
+    scene = layered_scene([(3.0, "stripes", (0.2, 0.7, 0.3, 0.8)), (-4.0, "tiles", None)], n_views=4,
+                          size=size, seed=3, name="stripes before tiles")
+    cases.append(_synthetic("stripes over tiles, 4x4", "tune", scene, [3.0, -4.0], "sparse grid"))
+    scene = layered_scene([(5.0, "grey", (0.3, 0.7, 0.3, 0.7)), (-3.0, "bricks", None)], n_views=3,
                           size=size, seed=4, name="sparse 3x3")
-    cases.append(_synthetic("grey noise over checker, 3x3", "tune", scene, [4.0, -3.0], "very sparse views"))
+    cases.append(_synthetic("grey noise over bricks, 3x3", "tune", scene, [5.0, -3.0, 1.0], "very sparse views"))
+    scene = layered_scene([(2.0, "smooth", (0.2, 0.7, 0.3, 0.8)), (-1.0, "fine", None)], n_views=9,
+                          size=size, seed=5, name="smooth before fine")
+    cases.append(_synthetic("smooth over fine noise, 9x9", "tune", scene, [2.0, -1.0],
+                            "dense grid, small disparities: little to alias"))
     # -- holdout: never used to choose -------------------------------------------------------
     scene = brick_room(n_views=8, size=size, seed=0)
     cases.append(_synthetic("brick room (paper Fig. 6), 8x8", "holdout", scene, [4.0, -4.0],
                             "the paper's scene: tiles before a brick wall"))
-    scene = layered_scene([(2.5, "stripes", (0.15, 0.5, 0.15, 0.55)), (1.0, "checker", (0.45, 0.85, 0.4, 0.85)),
-                           (-1.5, "noise", None)], n_views=7, size=size, seed=11, name="stripes, checker, noise")
-    cases.append(_synthetic("three layers, 7x7, Bayer + vignetted + noise", "holdout", scene, [2.5, 1.0, -1.5],
-                            "RGGB mosaic demosaiced, calibrated vignetting, noise",
+    scene = layered_scene([(4.0, "stripes", (0.15, 0.5, 0.15, 0.55)), (0.0, "tiles", (0.45, 0.85, 0.4, 0.85)),
+                           (-4.0, "lines", None)], n_views=7, size=size, seed=11, name="stripes, tiles, lines")
+    cases.append(_synthetic("stripes, tiles, lines, 7x7, Bayer + vignetted + noise", "holdout", scene,
+                            [4.0, 0.0, -4.0], "RGGB mosaic demosaiced, calibrated vignetting, noise",
                             vignetting=0.8, bayer=True, read_noise=0.003, shot_noise=0.008, calibrated=True, seed=11))
-    scene = layered_scene([(3.0, "fine", (0.25, 0.75, 0.35, 0.75)), (-1.0, "smooth", None)], n_views=6,
-                          size=size, seed=12, name="fine before smooth")
-    cases.append(_synthetic("fine over smooth, 6x6, saturated + noise", "holdout", scene, [3.0, -1.0],
+    scene = layered_scene([(5.0, "bricks", (0.25, 0.75, 0.35, 0.75)), (-3.0, "noise", None)], n_views=6,
+                          size=size, seed=12, name="bricks before noise")
+    cases.append(_synthetic("bricks over noise, 6x6, saturated + noise", "holdout", scene, [5.0, -3.0],
                             "exposure 1.5: bright parts clipped; noise",
                             exposure=1.5, read_noise=0.003, shot_noise=0.01, seed=12))
-    scene = textureless_plane(n_views=8, size=size, seed=13)
-    cases.append(_synthetic("textureless wall + object, 8x8", "holdout", scene, [2.0, 0.0],
+    scene = textureless_plane(n_views=8, size=size, seed=13, object_disparity=4.0)
+    cases.append(_synthetic("textureless wall + object, 8x8", "holdout", scene, [4.0, 0.0],
                             "large flat wall: nothing to alias there"))
-    scene = layered_scene([(-2.5, "bricks", (0.3, 0.7, 0.2, 0.6)), (1.5, "noise", None)], n_views=4,
+    scene = layered_scene([(-4.0, "lines", (0.3, 0.7, 0.2, 0.6)), (3.0, "tiles", None)], n_views=4,
                           size=size, seed=14, name="smaller disparity in front")
-    cases.append(_synthetic("bricks over noise, 4x4, smaller disparity in front", "holdout", scene, [-2.5, 1.5],
+    cases.append(_synthetic("lines over tiles, 4x4, smaller disparity in front", "holdout", scene, [-4.0, 3.0],
                             "occlusion order reversed (larger disparity behind)"))
+    scene = layered_scene([(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3,
+                          size=size, seed=15, name="periodic wall")
+    cases.append(_synthetic("noise over a checkerboard, 3x3", "holdout", scene, [4.0, -3.0],
+                            "periodic texture: its disparity is ambiguous to within a period"))
     return cases
 
 

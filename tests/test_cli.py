@@ -218,33 +218,34 @@ def test_detect_writes_the_cv_map_and_mask_of_the_api(capsys, plane, tmp_path):
 def test_reduce_writes_the_image_levels_and_cv_of_the_api(capsys, plane, tmp_path):
     path, lf = plane
     out = tmp_path / "reduced.tif"
-    status, _, _ = run(capsys, "reduce", path, "--slope", 0, "--levels", 2, "-o", out)
+    status, _, _ = run(capsys, "reduce", path, "--slope", 0, "--levels", 2, "--method", "analytic", "-o", out)
     assert status == 0
-    expected = lfa.reduce_aliasing(lf, 0.0, max_level=2)
+    expected = lfa.reduce_aliasing(lf, 0.0, max_level=2, method="analytic")
     np.testing.assert_array_equal(tifffile.imread(out), expected.image[..., 0])
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "reduced_levels.tif"), expected.level)
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "reduced_cv.tif"), expected.cv)
-    assert run(capsys, "reduce", path, "--slope", 0, "-o", tmp_path / "reduced.png", "--auto-contrast")[0] == 0
+    argv = ["--method", "analytic", "-o", tmp_path / "reduced.png", "--auto-contrast"]
+    assert run(capsys, "reduce", path, "--slope", 0, *argv)[0] == 0
     assert iio.imread(tmp_path / "reduced_levels.png").max() > 0
 
 
 def test_threshold_scale_and_solver_reach_the_api(capsys, plane, tmp_path):
     path, lf = plane
     out = tmp_path / "a.tif"
-    angular = ["--threshold-scale", "angular", "--threshold", 0.4]
+    angular = ["--threshold-scale", "angular", "--threshold", 0.4, "--method", "analytic"]
     assert run(capsys, "detect", path, "--slope", 0, "-o", out, *angular)[0] == 0
-    expected = lfa.detect_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular")
+    expected = lfa.detect_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular", method="analytic")
     # The Cv output is the map T applies to: here the angular Cv.
     np.testing.assert_array_equal(tifffile.imread(out), expected.angular_cv)
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "a_mask.tif").astype(bool), expected.mask)
     assert tifffile.TiffFile(out).shaped_metadata[0]["threshold_scale"] == "angular"
     # T = 0.4 flags most of the off-focus texture on the angular scale and nothing on the paper's.
     assert expected.mask.mean() > 0.5
-    assert not lfa.detect_aliasing(lf, 0.0, threshold=0.4).mask.any()
+    assert not lfa.detect_aliasing(lf, 0.0, threshold=0.4, method="analytic").mask.any()
 
     out = tmp_path / "r.tif"
     assert run(capsys, "reduce", path, "--slope", 0, "-o", out, *angular, "--solver", "dct", "--levels", 2)[0] == 0
-    expected = lfa.reduce_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular", solver="dct", max_level=2)
+    expected = lfa.reduce_aliasing(lf, 0.0, threshold=0.4, threshold_scale="angular", solver="dct", max_level=2, method="analytic")
     np.testing.assert_array_equal(tifffile.imread(out), expected.image[..., 0])
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "r_levels.tif"), expected.level)
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "r_cv.tif"), expected.detections[0].angular_cv)
@@ -433,7 +434,7 @@ def test_demo_runs_the_bundled_capture_end_to_end(capsys, tmp_path):
         assert stage in stdout
     assert sorted(p.name for p in out.iterdir()) == sorted(DEMO_FILES)
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["threshold_scale"] == "angular" and summary["threshold"] == 0.5
+    assert summary["method"] == "depth" and summary["threshold"] == 0.02
     assert set(summary["seconds"]) >= {"load + decode GUV capture", "refocus", "all (wall)"}
     # The slope shown is the most aliased one of the sweep, and it does alias.
     candidates = summary["slope_candidates"]
@@ -509,8 +510,8 @@ def test_keep_in_focus_reaches_the_api(capsys, tmp_path):
     path = tmp_path / "room.tif"
     io_write.write_lightfield(path, lf)
     out = tmp_path / "k.tif"
-    argv = ["reduce", path, "--slope", -4, "--threshold", 0.005, "-o", out]
+    argv = ["reduce", path, "--slope", -4, "--threshold", 0.005, "--method", "analytic", "-o", out]
     assert run(capsys, *argv, "--keep-in-focus")[0] == 0
-    expected = lfa.reduce_aliasing(lf, -4.0, threshold=0.005, keep_in_focus=True)
+    expected = lfa.reduce_aliasing(lf, -4.0, threshold=0.005, keep_in_focus=True, method="analytic")
     np.testing.assert_allclose(tifffile.imread(out), expected.image, atol=1e-6)
-    assert not np.allclose(expected.image, lfa.reduce_aliasing(lf, -4.0, threshold=0.005).image, atol=1e-3)
+    assert not np.allclose(expected.image, lfa.reduce_aliasing(lf, -4.0, threshold=0.005, method="analytic").image, atol=1e-3)

@@ -46,11 +46,11 @@ def test_focus_gives_the_api_refocus_and_exact_cv(room):
     assert all(done <= total for done, total in steps)
     np.testing.assert_array_equal(image, lfa.refocus(room, 4.0))
     # every Cv is computed (skip_flat=False): equal to the API's everywhere ...
-    full = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01, skip_flat=False)
+    full = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01, skip_flat=False, method="analytic")
     np.testing.assert_array_equal(detection.cv, full.cv)
     np.testing.assert_array_equal(detection.mask, full.mask)
     # ... and to the default call wherever that one evaluates, with the same mask
-    default = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01)
+    default = lfa.detect_aliasing(room, 4.0, gamma=0.25, threshold=0.01, method="analytic")
     np.testing.assert_array_equal(detection.cv[default.evaluated], default.cv[default.evaluated])
     np.testing.assert_array_equal(detection.mask, default.mask)
     assert detection.mask.any() and not detection.mask.all()
@@ -62,7 +62,7 @@ def test_dark_floor_and_border_factors_are_the_cores(room):
     data[:, :, :24, :24] *= 0.001
     lf = lfa.LightField(data, room.positions)
     detection, _ = _run(AliasingSession(lf).detect(2.5, DetectionParams()))
-    expected = lfa.detect_aliasing(lf, 2.5, skip_flat=False)
+    expected = lfa.detect_aliasing(lf, 2.5, skip_flat=False, method="analytic")
     np.testing.assert_array_equal(detection.cv, expected.cv)
     np.testing.assert_array_equal(detection.cv_scale, expected.cv_scale)
     assert len(np.unique(detection.cv_scale)) > 1  # border pixels have their own factor
@@ -89,7 +89,7 @@ def test_new_gamma_and_seed_reuse_the_shifted_views(room):
     moments = detector._moments[0]
     regamma, _ = _run(session.detect(1.0, DetectionParams(gamma=0.5)))
     assert detector._moments[0] is moments  # the same moments: no view shifted again
-    np.testing.assert_array_equal(regamma.cv, lfa.detect_aliasing(room, 1.0, gamma=0.5, skip_flat=False).cv)
+    np.testing.assert_array_equal(regamma.cv, lfa.detect_aliasing(room, 1.0, gamma=0.5, skip_flat=False, method="analytic").cv)
 
     mc = DetectionParams(method="monte_carlo", n_patterns=12, seed=4)
     first, _ = _run(session.detect(1.0, mc))
@@ -105,7 +105,7 @@ def test_reduce_is_the_api_reduction_with_the_sessions_detector(room):
     session = AliasingSession(room)
     params = DetectionParams(threshold=0.01, max_level=2)
     reduction, _ = _run(session.reduce(4.0, params))
-    expected = lfa.reduce_aliasing(room, 4.0, threshold=0.01, max_level=2, seed=0)
+    expected = lfa.reduce_aliasing(room, 4.0, threshold=0.01, max_level=2, seed=0, method="analytic")
     np.testing.assert_array_equal(reduction.level, expected.level)
     np.testing.assert_array_equal(reduction.image, expected.image)
     assert reduction.level.max() > 0
@@ -140,7 +140,7 @@ def test_a_job_waiting_for_the_detector_yields_and_refocuses_meanwhile(room):
     assert steps[-1] == (1, 2)  # still waiting, yielding: a worker can stop it here
     (again, detection), _ = _run(job)
     assert again is image
-    np.testing.assert_array_equal(detection.cv, lfa.detect_aliasing(room, 2.0, skip_flat=False).cv)
+    np.testing.assert_array_equal(detection.cv, lfa.detect_aliasing(room, 2.0, skip_flat=False, method="analytic").cv)
     assert not session._lock.locked()
     # without detection (Monte Carlo asks for it in its own job): the image alone
     (image, nothing), steps = _run(session.focus(1.0, DetectionParams(), detect=False))
@@ -163,9 +163,9 @@ def test_jobs_in_two_threads_share_the_detector_safely(room):
         thread.start()
     for thread in threads:
         thread.join(60)
-    np.testing.assert_array_equal(results["detect"].cv, lfa.detect_aliasing(room, -1.5, skip_flat=False).cv)
+    np.testing.assert_array_equal(results["detect"].cv, lfa.detect_aliasing(room, -1.5, skip_flat=False, method="analytic").cv)
     np.testing.assert_array_equal(results["reduce"].image,
-                                  lfa.reduce_aliasing(room, 4.0, threshold=0.01, seed=0).image)
+                                  lfa.reduce_aliasing(room, 4.0, threshold=0.01, seed=0, method="analytic").image)
 
 
 def test_focus_range_from_metadata_or_the_data_geometry(room):

@@ -1,15 +1,22 @@
 """Aliasing reduction (Algorithm 2): levels, fusion, accuracy against the dense aperture, parameters."""
 
+import functools
 import numpy as np
 import pytest
 
 import napari_lfalias as lfa
 from napari_lfalias import detect as detect_module
+from napari_lfalias import reduce as reduce_module
 from napari_lfalias.detect import AliasingDetector
 from napari_lfalias.baselines import view_spacing
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import fuse_levels, levels_from_disparity
 from napari_lfalias.synthetic import brick_room, textured_plane
+
+#: These tests are about Algorithm 2 with the paper's Cv: the method is the exact Cv unless a test names
+#: another (the package's default, the disparity-guided reduction, is tested in test_depth_guided).
+reduce_cv = functools.partial(lfa.reduce_aliasing, method="analytic")
+iter_reduce_cv = functools.partial(reduce_module.iter_reduce_aliasing, method="analytic")
 
 
 @pytest.fixture(scope="module")
@@ -23,14 +30,14 @@ def psnr(image, reference, mask):
 
 def test_a_light_field_without_aliasing_comes_back_as_the_naive_refocus():
     lf = textured_plane(n_views=5, size=64, seed=0, disparity=1.0).lightfield
-    result = lfa.reduce_aliasing(lf, 1.0)
+    result = reduce_cv(lf, 1.0)
     assert not result.level.any()
     np.testing.assert_allclose(result.image, lfa.refocus(lf, 1.0), atol=1e-6)
-    np.testing.assert_array_equal(result.cv, lfa.detect_aliasing(lf, 1.0).cv)
+    np.testing.assert_array_equal(result.cv, lfa.detect_aliasing(lf, 1.0, method="analytic").cv)
 
 
 def test_max_level_zero_is_the_naive_refocus_with_its_cv(room):
-    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=0)
+    result = reduce_cv(room.lightfield, 4.0, threshold=0.005, max_level=0)
     np.testing.assert_array_equal(result.image, lfa.refocus(room.lightfield, 4.0))
     assert not result.level.any() and result.cv.max() > 0.005
 
@@ -38,8 +45,8 @@ def test_max_level_zero_is_the_naive_refocus_with_its_cv(room):
 @pytest.mark.parametrize("max_level", [1, 2, 3])
 def test_level_map_follows_the_detections(room, max_level):
     """l* = 0 where level 0 is alias-free; l* = l where levels < l alias and l does not; never above max_level."""
-    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=max_level)
-    level0 = lfa.detect_aliasing(room.lightfield, 4.0, threshold=0.005)
+    result = reduce_cv(room.lightfield, 4.0, threshold=0.005, max_level=max_level)
+    level0 = lfa.detect_aliasing(room.lightfield, 4.0, threshold=0.005, method="analytic")
     assert result.level.dtype == np.uint8 and result.level.max() <= max_level
     np.testing.assert_array_equal(result.level == 0, ~level0.mask)
     assert (result.level > 0).mean() > 0.3  # the wall aliases: the test could fail
@@ -53,14 +60,14 @@ def test_level_map_follows_the_detections(room, max_level):
 
 
 def test_pixels_kept_at_level_zero_are_unchanged(room):
-    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    result = reduce_cv(room.lightfield, 4.0, threshold=0.005)
     keep = result.level == 0
     assert keep.any() and (~keep).any()
     np.testing.assert_array_equal(result.image[keep], result.refocused[keep])
 
 
 def test_output_is_finite_and_within_the_input_range(room):
-    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    result = reduce_cv(room.lightfield, 4.0, threshold=0.005)
     data = room.lightfield.data
     assert np.all(np.isfinite(result.image))
     assert result.image.min() >= data.min() - 0.05 and result.image.max() <= data.max() + 0.05
@@ -69,7 +76,7 @@ def test_output_is_finite_and_within_the_input_range(room):
 def test_reduction_is_closer_to_the_dense_aperture_where_it_acts(room):
     """Focused on the cube, the wall aliases; the fused result must be nearer the dense-aperture reference there."""
     slope = 4.0
-    result = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005)
+    result = reduce_cv(room.lightfield, slope, threshold=0.005)
     reference = room.reference(slope)
     acted = result.level > 0
     assert psnr(result.image, reference, acted) >= psnr(result.refocused, reference, acted) + 3.0
@@ -79,8 +86,8 @@ def test_keeping_the_in_focus_layer_keeps_the_wall_sharp_around_the_defocused_cu
     """Focused on the wall, the defocused cube's halo hides part of it: the wall must stay nearer the reference."""
     slope = -4.0
     reference = room.reference(slope)
-    paper = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005)
-    kept = lfa.reduce_aliasing(room.lightfield, slope, threshold=0.005, keep_in_focus=True)
+    paper = reduce_cv(room.lightfield, slope, threshold=0.005)
+    kept = reduce_cv(room.lightfield, slope, threshold=0.005, keep_in_focus=True)
     np.testing.assert_array_equal(kept.level, paper.level)
     halo = (kept.level > 0) & (room.disparity == slope)  # in-focus wall pixels the reduction acted on
     assert halo.mean() > 0.01
@@ -97,20 +104,20 @@ def test_coarser_levels_are_only_computed_where_pixels_are_still_aliased(room, m
         return detect(self, slope, *args, region=region, level=level, **kwargs)
 
     monkeypatch.setattr(AliasingDetector, "detect", spy)
-    lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    reduce_cv(room.lightfield, 4.0, threshold=0.005)
     assert regions[0] == (0, None)
     fractions = [fraction for level, fraction in regions[1:]]
     assert fractions and all(0 < f < 1 for f in fractions)
     # and no level at all where nothing aliases
     regions.clear()
-    lfa.reduce_aliasing(room.lightfield, 4.0, threshold=10.0)
+    reduce_cv(room.lightfield, 4.0, threshold=10.0)
     assert [level for level, _ in regions] == [0]
 
 
 def test_the_steps_report_progress_and_give_the_same_result(room):
     from napari_lfalias.reduce import iter_reduce_aliasing
 
-    steps = iter_reduce_aliasing(room.lightfield, 4.0, threshold=0.005, max_level=3)
+    steps = iter_reduce_cv(room.lightfield, 4.0, threshold=0.005, max_level=3)
     progress = []
     while True:
         try:
@@ -119,7 +126,7 @@ def test_the_steps_report_progress_and_give_the_same_result(room):
             result = done.value
             break
     assert progress == [(k, 6) for k in range(1, 7)]
-    np.testing.assert_array_equal(result.image, lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005).image)
+    np.testing.assert_array_equal(result.image, reduce_cv(room.lightfield, 4.0, threshold=0.005).image)
 
 
 def test_closing_the_steps_stops_the_work(room, monkeypatch):
@@ -127,7 +134,7 @@ def test_closing_the_steps_stops_the_work(room, monkeypatch):
 
     calls = []
     monkeypatch.setattr(reduce_module, "fuse_gradients", lambda *a, **k: calls.append("fuse"))
-    steps = reduce_module.iter_reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    steps = iter_reduce_cv(room.lightfield, 4.0, threshold=0.005)
     assert next(steps) == (1, 6)
     steps.close()
     assert calls == []
@@ -135,14 +142,14 @@ def test_closing_the_steps_stops_the_work(room, monkeypatch):
 
 def test_a_detector_can_be_reused(room, monkeypatch):
     detector = AliasingDetector(room.lightfield)
-    first = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, detector=detector)
+    first = reduce_cv(room.lightfield, 4.0, threshold=0.005, detector=detector)
     shifted = []
     monkeypatch.setattr(detect_module, "_run", lambda name, *a, _run=detect_module._run: (shifted.append(name), _run(name, *a)))
-    again = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005, detector=detector)
+    again = reduce_cv(room.lightfield, 4.0, threshold=0.005, detector=detector)
     assert "moments" not in shifted  # level 0 reused
     np.testing.assert_array_equal(first.image, again.image)
     with pytest.raises(ParameterError, match="detector"):
-        lfa.reduce_aliasing(textured_plane(n_views=3, size=16).lightfield, 0.0, detector=detector)
+        reduce_cv(textured_plane(n_views=3, size=16).lightfield, 0.0, detector=detector)
 
 
 @pytest.mark.parametrize(
@@ -155,18 +162,18 @@ def test_a_detector_can_be_reused(room, monkeypatch):
 )
 def test_bad_parameters_are_parameter_errors(room, kwargs, word):
     with pytest.raises(ParameterError, match=word):
-        lfa.reduce_aliasing(room.lightfield, 1.0, **kwargs)
+        reduce_cv(room.lightfield, 1.0, **kwargs)
 
 
 def test_bad_slope_and_light_field_are_parameter_errors(room):
     with pytest.raises(ParameterError, match="slope"):
-        lfa.reduce_aliasing(room.lightfield, float("nan"))
+        reduce_cv(room.lightfield, float("nan"))
     with pytest.raises(ParameterError, match="LightField"):
-        lfa.reduce_aliasing(np.zeros((2, 2, 8, 8, 1)), 0.0)
+        reduce_cv(np.zeros((2, 2, 8, 8, 1)), 0.0)
 
 
 def test_fuse_levels_renders_what_the_reduction_made_of_its_own_level_map(room):
-    result = lfa.reduce_aliasing(room.lightfield, 4.0, threshold=0.005)
+    result = reduce_cv(room.lightfield, 4.0, threshold=0.005)
     np.testing.assert_array_equal(fuse_levels(result.refocused, result.level), result.image)
     np.testing.assert_array_equal(fuse_levels(result.refocused, np.zeros_like(result.level)), result.refocused)
 

@@ -24,7 +24,9 @@ __all__ = ["sweep_costs", "wls_rows", "box_mean_stack"]
 @njit(cache=True, inline="always")
 def _taps(shift, n):
     """Integer part, fraction (snapped to 0 near whole pixels) and the output range ``[lo, hi)``
-    of a shift along an axis of length ``n`` whose taps all lie inside."""
+    of a shift along an axis of length ``n`` whose taps all lie inside (none for a shift of ``n`` or more)."""
+    if not abs(shift) < n:
+        return 0, 0.0, 0, 0
     base = int(np.floor(shift))
     frac = shift - base
     if frac > 1.0 - 1e-6:

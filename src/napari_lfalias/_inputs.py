@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .errors import CalibrationError
 
-__all__ = ["open_input", "read_grid", "view_grid", "lenslet_options", "check_reduce_options"]
+__all__ = ["open_input", "read_grid", "view_grid", "lenslet_options", "check_reduce_options", "resolved_options"]
 
 _VIEW_GRID = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 
@@ -106,13 +106,38 @@ def open_input(path, white=None, dark=None, grid=None, nonfinite=None):
     return load(path, **options)
 
 
+def resolved_options(**options):
+    """The options as the library will use them: every ``None`` replaced by the preset's or the default.
+
+    Examples
+    --------
+    >>> resolved_options(method=None, threshold=None, max_level=None)["method"]
+    'depth'
+    """
+    from .reduce import reduction_options
+
+    given = {k: v for k, v in options.items() if k in _REDUCE_OPTIONS}
+    detection, max_level, screen = reduction_options(**given)
+    out = dict(options)
+    out.update({k: v for k, v in detection.items() if k in options or k == "method"})
+    if "max_level" in options:
+        out["max_level"] = max_level
+    if "screen" in options:
+        out["screen"] = screen
+    return out
+
+
+#: Keyword options of :func:`napari_lfalias.reduce.reduction_options`.
+_REDUCE_OPTIONS = {"preset", "method", "threshold", "gamma", "n_patterns", "seed", "threshold_scale", "max_level",
+                   "solver", "screen", "keep_in_focus"}
+
+
 def check_reduce_options(slope, **options):
     """Check the options of a detection or reduction before any long work starts.
 
     The core checks its parameters where it uses them (after a light field
-    is decoded, or on a worker); this runs those same checks at once, on a
-    tiny light field, so a bad ``gamma`` fails in milliseconds and in one
-    place.
+    is decoded, or on a worker); this runs those same checks at once, so a
+    bad ``gamma`` fails in milliseconds and in one place.
 
     Parameters
     ----------
@@ -126,9 +151,19 @@ def check_reduce_options(slope, **options):
     ParameterError
         Naming the parameter at fault.
     """
-    import numpy as np
+    from . import _validate
+    from .detect import LUMINANCE_MODES
+    from .errors import ParameterError
+    from .reduce import reduction_options
 
-    from .lightfield import LightField
-    from .reduce import reduce_aliasing
-
-    reduce_aliasing(LightField(np.zeros((2, 2, 4, 4, 1), np.float32)), slope, **options)
+    _validate.finite_float("slope", slope)
+    options = dict(options)
+    if "luminance" in options:
+        _validate.one_of("luminance", options.pop("luminance"), LUMINANCE_MODES)
+    if "dark_floor" in options:
+        _validate.non_negative_float("dark_floor", options.pop("dark_floor"))
+    unknown = sorted(set(options) - _REDUCE_OPTIONS)
+    if unknown:
+        raise ParameterError(f"unknown option(s) {', '.join(unknown)} of a reduction; known: "
+                             f"{', '.join(sorted(_REDUCE_OPTIONS))}")
+    reduction_options(**options)

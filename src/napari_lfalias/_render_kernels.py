@@ -75,6 +75,8 @@ def warp_disparity(disparity, confidence, positions, larger_first, out_disparity
                 d = disparity[y, x]
                 ty = y + d * positions[i, 0]
                 tx = x + d * positions[i, 1]
+                if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
+                    continue  # lands outside the view (tested on floats: no integer overflow)
                 y0 = int(np.floor(ty))
                 x0 = int(np.floor(tx))
                 for yy in range(y0, y0 + 2):
@@ -99,6 +101,10 @@ def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, o
     for i in prange(n):
         dy = slope * positions[i, 0]
         dx = slope * positions[i, 1]
+        if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
+            out_bins[i] = -1
+            out_confidence[i] = 0.0
+            continue
         for y in range(n_rows):
             sy = int(np.floor(y + dy + 0.5))
             for x in range(n_cols):

@@ -47,7 +47,7 @@ _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$
 FLAGS = {
     "white": "--white", "dark": "--dark", "grid": "--grid", "nonfinite": "--nonfinite", "overwrite": "--overwrite",
     "slope": "--slope", "gamma": "--gamma", "n_patterns": "--n", "threshold": "--threshold",
-    "threshold_scale": "--threshold-scale", "method": "--method", "seed": "--seed", "max_level": "--levels",
+    "threshold_scale": "--threshold-scale", "method": "--method", "preset": "--preset", "seed": "--seed", "max_level": "--levels",
     "solver": "--solver", "keep_in_focus": "--keep-in-focus", "workers": "--workers", "scheduler": "--scheduler",
     "fmt": "--format", "task": "--task",
 }
@@ -115,53 +115,64 @@ def _add_slope(parser, required=True):
 
 #: Choices of the numeric core, repeated here so ``lfalias --help`` does not import it
 #: (tests/test_cli.py checks they match ``detect.METHODS``, ``detect.THRESHOLD_SCALES``, ``reduce.SOLVERS``).
-METHODS = ("analytic", "monte_carlo")
+METHODS = ("depth", "analytic", "monte_carlo")
 THRESHOLD_SCALES = ("cv", "angular")
+PRESETS = ("paper",)
 SOLVERS = ("auto", "lu", "multigrid", "dct")
 
 
-def add_detection_options(parser, threshold=0.02, threshold_scale="cv"):
-    """Add the options of Algorithm 1 (shared by detect, reduce, batch and demo).
+def add_detection_options(parser, threshold=None, threshold_scale="cv"):
+    """Add the options of the aliasing detection (shared by detect, reduce, batch and demo).
 
     Parameters
     ----------
     parser : argparse.ArgumentParser
     threshold, threshold_scale
-        Defaults of ``--threshold`` and ``--threshold-scale`` (the demo
-        states its threshold on the angular scale).
+        Defaults of ``--threshold`` (``None``: the method's own default)
+        and ``--threshold-scale``.
     """
-    group = parser.add_argument_group("aliasing detection (Algorithm 1)")
-    group.add_argument("--gamma", type=float, default=0.2, help="relaxation: fraction of views dropped at most (default 0.2)")
-    group.add_argument("--n", type=int, default=100, metavar="N", help="number of random sampling patterns (default 100)")
-    group.add_argument("--threshold", type=float, default=threshold, metavar="T",
-                       help=f"a pixel is aliased where its Cv exceeds T (default {threshold:g})")
+    group = parser.add_argument_group("aliasing detection")
     group.add_argument(
-        "--threshold-scale", choices=THRESHOLD_SCALES, default=threshold_scale,
-        help="cv: T applies to the paper's Cv, which shrinks as views are added (T = 0.02 on 8 x 8 views "
-        "flags what T = 0.034 does on 5 x 5 and T = 0.011 on 15 x 15); angular: T applies to the angular Cv "
-        "(std / mean of the shifted views), the same for any number of views: T = 0.48 is the paper's "
-        f"0.02 on 8 x 8 (default {threshold_scale})",
+        "--method", choices=METHODS, default=None,
+        help="depth: where the refocus differs from what a dense aperture records, predicted from the light "
+        "field's own disparity (default); analytic / monte_carlo: the paper's Cv (Algorithm 1), exact or "
+        "estimated from random view patterns",
     )
     group.add_argument(
-        "--method", choices=METHODS, default="analytic",
-        help="exact expected Cv or the paper's Monte-Carlo estimate (default analytic)",
+        "--preset", choices=PRESETS, default=None,
+        help="paper: Xiao et al. (2014) as published (Monte-Carlo Cv, gamma 0.2, N 100, T 0.02, Algorithm 2 "
+        "with plain Poisson fusion); options given explicitly still win",
+    )
+    group.add_argument("--threshold", type=float, default=threshold, metavar="T",
+                       help="depth: relative luminance difference from the dense aperture that counts as aliased "
+                       "(default 0.02); Cv methods: a pixel is aliased where its Cv exceeds T (default 0.02)")
+    group.add_argument("--gamma", type=float, default=None,
+                       help="Cv methods: relaxation, fraction of views dropped at most (default 0.2)")
+    group.add_argument("--n", type=int, default=None, metavar="N",
+                       help="monte_carlo: number of random sampling patterns (default 100)")
+    group.add_argument(
+        "--threshold-scale", choices=THRESHOLD_SCALES, default=threshold_scale,
+        help="Cv methods: cv: T applies to the paper's Cv, which shrinks as views are added (T = 0.02 on 8 x 8 "
+        "views flags what T = 0.034 does on 5 x 5 and T = 0.011 on 15 x 15); angular: T applies to the angular "
+        "Cv (std / mean of the shifted views), the same for any number of views: T = 0.48 is the paper's "
+        f"0.02 on 8 x 8 (default {threshold_scale})",
     )
     group.add_argument("--seed", type=int, default=None, help="seed of the Monte-Carlo patterns")
 
 
 def _add_reduction_options(parser):
-    group = parser.add_argument_group("aliasing reduction (Algorithm 2)")
-    group.add_argument("--levels", type=int, default=3, metavar="L",
-                       help="highest pyramid level of Algorithm 2 (default 3)")
+    group = parser.add_argument_group("aliasing reduction")
+    group.add_argument("--levels", type=int, default=None, metavar="L",
+                       help="Cv methods: highest pyramid level of Algorithm 2 (default 3)")
     group.add_argument(
         "--solver", choices=SOLVERS, default="auto",
-        help="Poisson solver of the gradient-domain fusion: auto (exact, keeps every pixel of level 0), "
+        help="Cv methods: Poisson solver of the gradient-domain fusion: auto (exact, keeps every pixel of level 0), "
         "lu (sparse direct), multigrid, dct (fastest; may move pixels outside the fused region) (default auto)",
     )
     group.add_argument(
         "--keep-in-focus", action="store_true",
-        help="keep the in-focus surface sharp where a defocused occluder partly hides it (beyond the paper; "
-        "pays off at low thresholds such as 0.005)",
+        help="Cv methods: keep the in-focus surface sharp where a defocused occluder partly hides it (beyond "
+        "the paper; pays off at low thresholds such as 0.005)",
     )
 
 
@@ -238,14 +249,12 @@ def build_parser():
     sub = command(
         "demo", "run the whole pipeline on the bundled GUV capture and time each stage",
         "lfalias demo --out lfalias-demo --overwrite",
-        ". Without --slope it sweeps the capture's disparity range and shows the most aliased slope. "
-        "The threshold is stated on the angular scale (T = 0.5, about the paper's T = 0.02 on 8 x 8 views): "
-        "on the paper's scale the 15 x 15 views of this capture would need T = 0.011 to flag the same.",
+        ". Without --slope it sweeps the capture's disparity range and shows the most aliased slope.",
     )
     sub.add_argument("-o", "--out", default="lfalias-demo", metavar="DIR", help="output folder (default ./lfalias-demo)")
     sub.add_argument("--overwrite", action="store_true", help="replace the files of an earlier run")
     _add_slope(sub, required=False)
-    add_detection_options(sub, threshold=0.5, threshold_scale="angular")
+    add_detection_options(sub)
     _add_reduction_options(sub)
 
     from .batch import TASKS

@@ -100,7 +100,7 @@ from . import _budget, _validate
 from ._numerics import unit_scale
 from .errors import ParameterError
 from .lightfield import REC709, LightField
-from .presets import resolve
+from .presets import METHODS, THRESHOLD_SCALES, detection_options
 from .pyramid import MAX_LEVEL, lightfield_pyramid
 from .refocus import _inputs, _run, shift_views
 
@@ -116,12 +116,8 @@ __all__ = [
     "DARK_FLOOR",
 ]
 
-#: Detection methods: "depth" (the default: predicted error against a dense aperture, from the
-#: light field's own disparity, :mod:`.depth_guided`), and the paper's Cv (exact or Monte Carlo).
-METHODS = ("depth", "analytic", "monte_carlo")
 #: The methods that compute the paper's Cv (Eq. 7).
 CV_METHODS = ("analytic", "monte_carlo")
-THRESHOLD_SCALES = ("cv", "angular")
 LUMINANCE_MODES = ("rec709", "max")
 #: Floor of the mean a Cv is divided by, as a fraction of the light field's brightest luminance.
 DARK_FLOOR = 0.01
@@ -694,20 +690,13 @@ class AliasingDetector:
         -------
         Detection
         """
-        options = resolve(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns)
-        method, threshold = options["method"], options["threshold"]
-        gamma = 0.2 if options["gamma"] is None else options["gamma"]
-        n_patterns = 100 if options["n_patterns"] is None else options["n_patterns"]
+        options = detection_options(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns,
+                                    seed=seed, threshold_scale=threshold_scale)
+        method, threshold, gamma, n_patterns, seed = (options[k] for k in ("method", "threshold", "gamma",
+                                                                           "n_patterns", "seed"))
         slope = _validate.finite_float("slope", slope)
-        gamma = _validate.in_open_interval("gamma", gamma, 0.0, 1.0)
-        n_patterns = _validate.integer_at_least("n_patterns", n_patterns, 2)
-        threshold = _validate.positive_float("threshold", threshold)
-        _validate.one_of("method", method, METHODS)
         if method == "depth":
             return self._depth_detection(slope, threshold, level, region)
-        _validate.one_of("threshold_scale", threshold_scale, THRESHOLD_SCALES)
-        if seed is not None:
-            seed = _validate.integer_at_least("seed", seed, 0)
         level = _validate.integer_between("level", level, 0, MAX_LEVEL)
         lf = self.level(level)
         if region is not None:

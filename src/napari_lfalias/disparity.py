@@ -129,8 +129,7 @@ def _luminance_views(lf):
     """Luminance ``(n, Y, X)`` float32 scaled so the bright level is 1, and the sample weights ``(n, Y, X)``
     or None."""
     views = lf.views()
-    lum = views[..., 0] if lf.n_channels == 1 else views @ REC709
-    lum = np.ascontiguousarray(lum, np.float32)
+    lum = np.array(views[..., 0] if lf.n_channels == 1 else views @ REC709, np.float32)  # a copy: scaled below
     weights = lf.flat_weights()
     valid = None if weights is None else np.ascontiguousarray(weights, np.float32)
     seen = lum if valid is None else lum[valid > 0.5]
@@ -511,6 +510,12 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
         radius = max(2, min(shape) // 50)
     radius = _validate.integer_at_least("radius", radius, 1)
     low, high = _search_range(lf, disparity_range, qmax)
+    # Beyond this the outermost views no longer overlap the centre's image: nothing to match.
+    reach = max(shape) / qmax
+    low, high = max(low, -reach), min(high, reach)
+    if low > high:
+        raise ParameterError(f"disparity_range {disparity_range!r} lies beyond +-{reach:.3g} px per view step, "
+                             "where the outermost views no longer overlap the image")
     seconds = {}
     clock = time.perf_counter()
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from . import _validate
 
-__all__ = ["PRESETS", "METHOD_THRESHOLDS", "resolve"]
+__all__ = ["PRESETS", "METHOD_THRESHOLDS", "resolve", "detection_options"]
 
 #: The parameters each preset sets (the rest keep their function defaults).
 PRESETS = {
@@ -32,6 +32,13 @@ PRESETS = {
 
 #: Default threshold of each detection method when no preset sets one (measured, see the module notes).
 METHOD_THRESHOLDS = {"depth": 0.02, "analytic": 0.02, "monte_carlo": 0.02}
+#: Detection methods (see :mod:`napari_lfalias.detect`).
+METHODS = ("depth", "analytic", "monte_carlo")
+#: Scales a threshold may be stated on (see :mod:`napari_lfalias.detect`).
+THRESHOLD_SCALES = ("cv", "angular")
+#: Defaults of the Cv methods' own parameters when no preset sets them.
+GAMMA = 0.2
+N_PATTERNS = 100
 
 
 def resolve(preset, **given):
@@ -64,3 +71,36 @@ def resolve(preset, **given):
     if "threshold" in out and out["threshold"] is None and out.get("method") in METHOD_THRESHOLDS:
         out["threshold"] = METHOD_THRESHOLDS[out["method"]]
     return out
+
+
+def detection_options(preset=None, *, method=None, threshold=None, gamma=None, n_patterns=None, seed=None,
+                      threshold_scale="cv"):
+    """Every detection parameter resolved (preset, method defaults) and checked, whatever the method.
+
+    Returns
+    -------
+    dict
+        ``method``, ``threshold``, ``gamma``, ``n_patterns``, ``seed``,
+        ``threshold_scale``.
+
+    Raises
+    ------
+    ParameterError
+        Naming the parameter out of range.
+
+    Examples
+    --------
+    >>> detection_options()["method"], detection_options(preset="paper")["method"]
+    ('depth', 'monte_carlo')
+    """
+    chosen = resolve(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns)
+    method = _validate.one_of("method", chosen["method"], METHODS)
+    threshold = _validate.positive_float("threshold", chosen["threshold"])
+    gamma = _validate.in_open_interval("gamma", GAMMA if chosen["gamma"] is None else chosen["gamma"], 0.0, 1.0)
+    n_patterns = _validate.integer_at_least("n_patterns", N_PATTERNS if chosen["n_patterns"] is None
+                                            else chosen["n_patterns"], 2)
+    if seed is not None:
+        seed = _validate.integer_at_least("seed", seed, 0)
+    _validate.one_of("threshold_scale", threshold_scale, THRESHOLD_SCALES)
+    return {"method": method, "threshold": threshold, "gamma": gamma, "n_patterns": n_patterns, "seed": seed,
+            "threshold_scale": threshold_scale}

@@ -61,10 +61,11 @@ from .detect import DARK_FLOOR, AliasingDetector
 from .errors import ParameterError
 from .in_focus import in_focus_layer
 from .poisson import _labels, fuse_gradients
-from .presets import resolve
+from .presets import detection_options, resolve
 from .pyramid import MAX_LEVEL, level_shape, pyr_down, pyr_up
 
-__all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "fuse_levels", "levels_from_disparity", "SOLVERS", "SCREEN", "MAX_LEVEL"]
+__all__ = ["Reduction", "reduce_aliasing", "iter_reduce_aliasing", "reduction_options", "fuse_levels", "levels_from_disparity",
+           "SOLVERS", "SCREEN", "MAX_LEVEL"]
 
 #: Solvers of the gradient-domain fusion (see :mod:`napari_lfalias.poisson`).
 SOLVERS = ("auto", "lu", "multigrid", "dct")
@@ -98,11 +99,35 @@ class Reduction:
     detections: list = field(default_factory=list)
 
 
-def _check(max_level, solver, screen, keep_in_focus):
-    max_level = _validate.integer_between("max_level", max_level, 0, MAX_LEVEL)
+def reduction_options(preset=None, *, max_level=None, solver="auto", screen=None, keep_in_focus=False,
+                      **detection):
+    """Every parameter of :func:`reduce_aliasing` resolved (preset, defaults) and checked, whatever the method.
+
+    Returns
+    -------
+    (dict, int, float)
+        The detection options (:func:`~napari_lfalias.presets.detection_options`),
+        ``max_level`` and ``screen``.
+
+    Raises
+    ------
+    ParameterError
+        Naming the parameter out of range.
+
+    Examples
+    --------
+    >>> options, max_level, screen = reduction_options(preset="paper")
+    >>> options["method"], max_level, screen
+    ('monte_carlo', 3, 0.0)
+    """
+    options = detection_options(preset, **detection)
+    chosen = resolve(preset, max_level=max_level, screen=screen)
+    max_level = _validate.integer_between("max_level", 3 if chosen["max_level"] is None else chosen["max_level"],
+                                          0, MAX_LEVEL)
     _validate.one_of("solver", solver, SOLVERS)
     _validate.boolean("keep_in_focus", keep_in_focus)
-    return max_level, _validate.non_negative_float("screen", screen)
+    screen = _validate.non_negative_float("screen", SCREEN if chosen["screen"] is None else chosen["screen"])
+    return options, max_level, screen
 
 
 def _to_level(mask, level):
@@ -218,7 +243,7 @@ def fuse_levels(refocused, level_map, *, solver="auto", screen=SCREEN):
     >>> from napari_lfalias.reduce import fuse_levels
     >>> from napari_lfalias.synthetic import brick_room
     >>> lf = brick_room(n_views=4, size=64, seed=0).lightfield
-    >>> res = lfa.reduce_aliasing(lf, slope=4.0, threshold=0.01)
+    >>> res = lfa.reduce_aliasing(lf, slope=4.0, threshold=0.01, method="analytic")
     >>> bool(np.array_equal(fuse_levels(res.refocused, res.level), res.image))
     True
     """
@@ -340,7 +365,21 @@ def _reduce_depth_guided(detector, slope, threshold):
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,
                     seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
                     solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None, preset=None):
-    """Refocus ``lf`` at ``slope`` with angular aliasing reduced (Algorithm 2).
+    """Refocus ``lf`` at ``slope`` with angular aliasing reduced.
+
+    Two methods, chosen by ``method`` (or ``preset``):
+
+    - ``"depth"`` (the default): the pixels where the refocus differs from
+      what a dense aperture records, predicted from the light field's own
+      disparity, take the dense-aperture rendering; every other pixel keeps
+      the naive refocus exactly (:mod:`napari_lfalias.depth_guided`).
+    - ``"analytic"`` / ``"monte_carlo"``: Algorithm 2 of the paper with its
+      Cv (Algorithm 1): the aliased pixels take coarser pyramid levels,
+      fused in the gradient domain (module notes). ``preset="paper"`` is
+      this algorithm exactly as published.
+
+    ``benchmarks/results/accuracy.md`` measures both on data they were not
+    tuned on.
 
     Parameters
     ----------
@@ -349,32 +388,41 @@ def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_
     slope : float
         Disparity in focus (pixels per unit of view position).
     gamma, n_patterns, threshold, method, seed, threshold_scale, luminance, dark_floor
-        The detection parameters of :func:`~napari_lfalias.detect_aliasing`,
-        used on every level.
-    max_level : int
-        The coarsest pyramid level (>= 0; 0 returns the naive refocus).
-        Pixels still aliased there take it anyway (Eq. 8).
+        The detection parameters of :func:`~napari_lfalias.detect_aliasing`
+        (``None``: the preset's or the method's default), used on every
+        level by the Cv methods.
+    max_level : int, optional
+        Cv methods: the coarsest pyramid level (>= 0; 0 returns the naive
+        refocus); pixels still aliased there take it anyway (Eq. 8).
+        Default 3.
     solver : {"auto", "lu", "multigrid", "dct"}
-        The Poisson solver of the fusion (:mod:`napari_lfalias.poisson`).
-        ``"auto"`` is exact and never changes a pixel with ``l* = 0``.
-    screen : float
-        Weight of the data term of the screened fusion (>= 0; module
-        notes). 0 is the plain Poisson fusion of Perez et al.
+        Cv methods: the Poisson solver of the fusion
+        (:mod:`napari_lfalias.poisson`). ``"auto"`` is exact and never
+        changes a pixel with ``l* = 0``.
+    screen : float, optional
+        Cv methods: weight of the data term of the screened fusion (>= 0;
+        module notes); 0 is the plain Poisson fusion of Perez et al.
+        Default :data:`SCREEN` (0 with ``preset="paper"``).
     keep_in_focus : bool
-        Keep the in-focus surface sharp where a defocused occluder partly
-        hides it (module notes, :mod:`napari_lfalias.in_focus`). The
-        default, False, is the paper's Algorithm 2, which blurs the whole
-        pixel. True pays off at low thresholds, where the reduction acts
-        on whole occluders (T = 0.005: up to +6 dB); at the paper's T =
-        0.02 it sharpens the in-focus pixels but loses up to 1.5 dB over
-        the whole image (``benchmarks/results/reduction.md``).
+        Cv methods: keep the in-focus surface sharp where a defocused
+        occluder partly hides it (module notes, :mod:`napari_lfalias.in_focus`).
+        False is the paper's Algorithm 2, which blurs the whole pixel.
     detector : AliasingDetector, optional
-        A detector of ``lf`` to reuse (its pyramid, moments and stacks).
+        A detector of ``lf`` to reuse (its disparity, pyramid, moments and
+        stacks).
+    disparity : ndarray (Y, X) or DisparityEstimate, optional
+        ``method="depth"``: a disparity you already have; estimated from
+        the light field when not given (once per detector).
+    preset : {None, "paper"}
+        ``"paper"``: Xiao et al. (2014) as published
+        (:mod:`napari_lfalias.presets`); parameters given explicitly win.
 
     Returns
     -------
     Reduction
-        ``image`` (Y, X, C), ``level`` (Y, X) and the level-0 ``cv``.
+        ``image`` (Y, X, C), ``level`` (Y, X) (``"depth"``: the pyramid
+        level equivalent to the blur of each replaced pixel) and the
+        level-0 ``cv`` (``"depth"``: the aliasing score).
 
     Raises
     ------
@@ -383,12 +431,16 @@ def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_
 
     Examples
     --------
+    >>> import numpy as np
     >>> import napari_lfalias as lfa
     >>> from napari_lfalias.synthetic import brick_room
-    >>> lf = brick_room(n_views=4, size=64, seed=0).lightfield
-    >>> res = lfa.reduce_aliasing(lf, slope=4.0, threshold=0.01)
-    >>> res.image.shape, int(res.level.max()) <= 3
+    >>> scene = brick_room(n_views=4, size=64, seed=0)
+    >>> res = lfa.reduce_aliasing(scene.lightfield, slope=4.0)
+    >>> res.image.shape, bool(res.level.any())
     ((64, 64, 3), True)
+    >>> paper = lfa.reduce_aliasing(scene.lightfield, slope=4.0, preset="paper", seed=0)
+    >>> int(paper.level.max()) <= 3
+    True
     """
     steps = iter_reduce_aliasing(lf, slope, gamma, n_patterns, threshold, max_level, method, seed,
                                  threshold_scale=threshold_scale, luminance=luminance, dark_floor=dark_floor,
@@ -407,8 +459,9 @@ def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None,
                          preset=None):
     """:func:`reduce_aliasing` step by step: a generator for progress reports and cancellation.
 
-    Yields ``(done, total)`` after each stage (the detection of every
-    level, the level renderings, the fusion) and returns the
+    Yields ``(done, total)`` after each stage (``"depth"``: the disparity,
+    the rendering, the detection, the blend; Cv methods: the detection of
+    every level, the level renderings, the fusion) and returns the
     :class:`Reduction` (``StopIteration.value``; ``yield from`` hands it
     over). Closing the generator between two stages stops the work there:
     each stage takes at most a few hundred milliseconds on 8x8x512x512x3.
@@ -420,7 +473,7 @@ def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None,
     >>> import napari_lfalias as lfa
     >>> from napari_lfalias.synthetic import brick_room
     >>> lf = brick_room(n_views=4, size=32, seed=0).lightfield
-    >>> steps = iter_reduce_aliasing(lf, 4.0, threshold=0.01, max_level=2)
+    >>> steps = iter_reduce_aliasing(lf, 4.0, threshold=0.01, max_level=2, method="analytic")
     >>> progress = []
     >>> while True:
     ...     try:
@@ -433,21 +486,18 @@ def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None,
     """
     from .refocus import refocus
 
-    chosen = resolve(preset, method=method, threshold=threshold, gamma=gamma, n_patterns=n_patterns,
-                     max_level=max_level, screen=screen)
-    method, threshold = chosen["method"], chosen["threshold"]
-    max_level = 3 if chosen["max_level"] is None else chosen["max_level"]
-    screen = SCREEN if chosen["screen"] is None else chosen["screen"]
-    max_level, screen = _check(max_level, solver, screen, keep_in_focus)
+    options, max_level, screen = reduction_options(preset, method=method, threshold=threshold, gamma=gamma,
+                                                   n_patterns=n_patterns, seed=seed,
+                                                   threshold_scale=threshold_scale, max_level=max_level,
+                                                   solver=solver, screen=screen, keep_in_focus=keep_in_focus)
+    slope = _validate.finite_float("slope", slope)
     if detector is None:
         detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, disparity=disparity)
     elif not isinstance(detector, AliasingDetector) or detector.source is not lf:
         raise ParameterError("detector must be an AliasingDetector made for this light field (lf)")
     lf = detector.lf
-    if method == "depth":
-        return (yield from _reduce_depth_guided(detector, slope, threshold))
-    options = dict(gamma=chosen["gamma"], n_patterns=chosen["n_patterns"], threshold=threshold, method=method,
-                   seed=seed, threshold_scale=threshold_scale)
+    if options["method"] == "depth":
+        return (yield from _reduce_depth_guided(detector, slope, options["threshold"]))
     total = max_level + 3  # level 0, levels 1 .. max_level, renderings, fusion
     first = detector.detect(slope, **options)
     refocused = refocus(lf, slope)

@@ -108,8 +108,9 @@ def _bins(disparity, slope, spacing, max_bins):
     inner = np.linspace(low, high, count + 1)
     centres = np.where(counts > 0, sums / np.maximum(counts, 1), 0.5 * (inner[:-1] + inner[1:]))
     taps = np.zeros((count, 4))
+    widest = 2.0 * max(disparity.shape) + 3.0  # a wider box is the layer's mean anyway
     for k, centre in enumerate(centres):
-        width = abs(centre - slope) * spacing
+        width = min(abs(centre - slope) * spacing, widest)
         if width >= 2 * IN_FOCUS_PX:
             taps[k] = (*_box_taps(width), *_box_taps(width))
     return edges, centres, taps

@@ -23,6 +23,9 @@ __all__ = ["refocus_sweep", "disparity_range", "estimate_slope_range", "aliasing
 SLOPE_PAD = 0.5
 #: What a sweep can hold per slope.
 SWEEP_KINDS = ("refocus", "cv", "mask")
+#: The detection method of sweeps unless one is given: the exact Cv, one pass over the views per slope
+#: (the disparity-guided default renders a dense aperture per slope).
+SWEEP_METHOD = "analytic"
 
 
 def _slope_plane(lf, slope, what, detect_kw):
@@ -64,7 +67,8 @@ def refocus_sweep(lf, slopes, what="refocus", **detect_kw):
         :func:`~napari_lfalias.detect_aliasing`, ``(S, Y, X)`` float32;
         ``"mask"``: its aliasing mask, ``(S, Y, X)`` bool.
     **detect_kw
-        Passed to :func:`~napari_lfalias.detect_aliasing` (``gamma``,
+        Passed to :func:`~napari_lfalias.detect_aliasing`; the method is the
+        exact Cv unless one is given (:data:`SWEEP_METHOD`) (``gamma``,
         ``n_patterns``, ``threshold``, ``method``, ``seed``); not allowed
         with ``what="refocus"``.
 
@@ -99,6 +103,8 @@ def refocus_sweep(lf, slopes, what="refocus", **detect_kw):
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     _validate.one_of("what", what, SWEEP_KINDS)
+    if what != "refocus":
+        detect_kw = {"method": SWEEP_METHOD, **detect_kw}
     if what == "refocus" and detect_kw:
         raise ParameterError(
             f"detection options {sorted(detect_kw)} only apply to what='cv' or what='mask'"
@@ -302,7 +308,8 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, progress=None, detector=None,
         A detector of ``lf`` to use (and to leave warm for later detections);
         ``luminance``, ``dark_floor`` and ``skip_flat`` are then its own.
     **detect_kw
-        Passed to :func:`~napari_lfalias.detect_aliasing`.
+        Passed to :func:`~napari_lfalias.detect_aliasing`; the method is the
+        exact Cv unless one is given (:data:`SWEEP_METHOD`).
 
     Returns
     -------
@@ -329,6 +336,7 @@ def aliasing_by_slope(lf, slopes=None, n_slopes=9, progress=None, detector=None,
         low, high, _ = disparity_range(lf)
         slopes = np.linspace(low - SLOPE_PAD, high + SLOPE_PAD, n_slopes)
     slopes = _slopes_array(slopes)
+    detect_kw = {"method": SWEEP_METHOD, **detect_kw}
     detector_kw = {key: detect_kw.pop(key) for key in _DETECTOR_OPTIONS if key in detect_kw}
     if detector is None:
         detector = AliasingDetector(lf, **detector_kw)

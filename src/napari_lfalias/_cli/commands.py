@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import io_write
-from .._inputs import check_reduce_options, open_input, view_grid
+from .._inputs import check_reduce_options, open_input, resolved_options, view_grid
 from .._validate import finite_float
 from ..errors import ParameterError
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
@@ -28,6 +28,7 @@ def detect_options(args):
         "threshold_scale": args.threshold_scale,
         "method": args.method,
         "seed": args.seed,
+        "preset": args.preset,
     }
 
 
@@ -138,9 +139,10 @@ def run_refocus(args, stream):
 
 
 def run_detect(args, stream):
-    """Detect angular aliasing at one slope; write the Cv map and the mask."""
+    """Detect angular aliasing at one slope; write the aliasing score (Cv for the Cv methods) and the mask."""
     options = detect_options(args)
     outputs, stages, lf = _start(args, stream, ["mask"], options)
+    options = resolved_options(**options)
     from ..detect import detect_aliasing
 
     with stages("detect"):
@@ -157,9 +159,10 @@ def run_detect(args, stream):
 
 
 def run_reduce(args, stream):
-    """Reduce angular aliasing at one slope; write the image, level map and Cv map."""
+    """Reduce angular aliasing at one slope; write the image, level map and the aliasing score (or Cv)."""
     options = reduce_options(args)
     outputs, stages, lf = _start(args, stream, ["levels", "cv"], options)
+    options = resolved_options(**options)
     from ..reduce import reduce_aliasing
 
     with stages("reduce"):

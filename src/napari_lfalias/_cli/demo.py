@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io_write
-from .._inputs import check_reduce_options
+from .._inputs import check_reduce_options, resolved_options
 from ..errors import ParameterError
 from .commands import detect_options, reduce_options, thresholded_cv
 from .outputs import check_outputs, montage, preview_range, write_outputs
@@ -132,6 +132,8 @@ def run_demo(args, stream):
     options = reduce_options(args)
     detection_only = detect_options(args)
     check_reduce_options(0.0 if args.slope is None else args.slope, **options)
+    options, detection_only = resolved_options(**options), resolved_options(**detection_only)
+    chosen = options
     stages = Stages(5 + 2 * (args.slope is None), quiet=args.quiet, stream=stream)
     lf, description = _load_scene(stages, stream)
     from ..detect import AliasingDetector
@@ -142,16 +144,16 @@ def run_demo(args, stream):
         slope, candidates = _choose_slope(lf, detector, detection_only, stages, args.quiet, stream)
     stream.write(f"scene: {description}\n"
                  f"       {lf.grid_shape[0]} x {lf.grid_shape[1]} views of {lf.image_shape[0]} x {lf.image_shape[1]} px, "
-                 f"slope {slope:.4g}, T = {args.threshold:g} on the {args.threshold_scale} scale\n")
+                 f"slope {slope:.4g}, method {chosen['method']}, T = {chosen['threshold']:g}\n")
 
     from ..reduce import reduce_aliasing
     from ..refocus import refocus
 
     with stages("refocus"):
         image = refocus(lf, slope)
-    with stages(f"detect aliasing ({args.method})"):
+    with stages(f"detect aliasing ({chosen['method']})"):
         detection = detector.detect(slope, **detection_only)
-    with stages(f"reduce aliasing (levels <= {args.levels})"):
+    with stages("reduce aliasing"):
         result = reduce_aliasing(lf, slope, **options, detector=detector)
     with stages("write images"):
         out.mkdir(parents=True, exist_ok=True)
@@ -161,7 +163,8 @@ def run_demo(args, stream):
         centre = np.asarray(lf.data[lf.grid_shape[0] // 2, lf.grid_shape[1] // 2])
         cv = thresholded_cv(detection)
         panels = [("centre view", "image", centre), ("refocus", "image", image),
-                  (f"{'angular ' if args.threshold_scale == 'angular' else ''}Cv", "cv", cv),
+                  ("aliasing score" if chosen["method"] == "depth" else
+                   f"{'angular ' if args.threshold_scale == 'angular' else ''}Cv", "cv", cv),
                   ("aliased", "mask", detection.mask), ("level l*", "levels", result.level),
                   ("reduced", "image", result.image)]
         write_outputs(

@@ -247,7 +247,7 @@ def _lines_texture(rng, period, seam, spacing=(8, 28), width=(1.5, 3.5)):
     tint = rng.uniform(0.6, 1.0, size=(2, 3))
     y = np.stack([np.ones(period), lines(), np.ones(period)])
     x = np.stack([np.broadcast_to(background[:, None], (3, period)),
-                  0.25 * tint[0][:, None] * np.ones(period), 0.25 * tint[1][:, None] * lines()[None, :]])
+                  0.4 * tint[0][:, None] * np.ones(period), 0.4 * tint[1][:, None] * lines()[None, :]])
     return _Factors.from_samples(y, x, TEXTURE_CUTOFF)
 
 

@@ -123,10 +123,11 @@ def test_lenslet_capture_opens_with_a_grid_model_saved_beside_it(make_napari_vie
 
     source = lf_data / "napari_lf_guv"
     shutil.copy(source / GUV[0], tmp_path / "capture.tif")  # no white image beside it
-    assert _reader.get_lenslet_reader(str(tmp_path / "capture.tif")) is None
+    viewer = make_napari_viewer()
+    with pytest.raises(_reader.ReadError, match="needs a white image"):  # claimed, and says why
+        viewer.open(tmp_path / "capture.tif", plugin=PLUGIN)
     grid = calibrate(source / GUV[1], dark=source / GUV[2])
     write_json(tmp_path / "capture.grid.json", grid)
-    viewer = make_napari_viewer()
     layer, lf = _open_one(viewer, tmp_path / "capture.tif")
     expected = lfa.load(tmp_path / "capture.tif", grid=tmp_path / "capture.grid.json")
     np.testing.assert_array_equal(lf.data, expected.data)
@@ -140,10 +141,9 @@ def test_lenslet_capture_opens_with_its_white_image_given(make_napari_viewer, lf
     for path, name in zip(paths, GUV):
         path.parent.mkdir(exist_ok=True)
         shutil.copy(source / name, path)
-    assert _reader.get_lenslet_reader(str(paths[0])) is None  # nothing beside it
     viewer = make_napari_viewer()
     layers = viewer.open([str(p) for p in (paths[1], paths[0], paths[2])], stack=True, plugin=PLUGIN)
-    assert len(layers) == 1 and layers[0].name == "cells"
+    assert len(layers) == 1 and layers[0].name == "cells (a)"
     lf = lightfield_of(layers[0])
     expected = lfa.load(paths[0], white=paths[1], dark=paths[2])
     np.testing.assert_array_equal(lf.data, expected.data)

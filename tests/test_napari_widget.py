@@ -158,7 +158,7 @@ def test_monte_carlo_matches_the_api_with_the_same_seed(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
     widget.n_spin.setValue(20)
     widget.seed_spin.setValue(7)
-    widget.method_combo.setCurrentText("monte_carlo")
+    widget.set_method("monte_carlo")
     slope = widget.slope
     cv = _wait_for(qtbot, viewer, "cv", slope=slope, method="monte_carlo", n_patterns=20, seed=7)
     expected = lfa.detect_aliasing(lf, slope, gamma=0.2, n_patterns=20, method="monte_carlo",
@@ -168,7 +168,7 @@ def test_monte_carlo_matches_the_api_with_the_same_seed(scene_viewer, qtbot):
 
 def test_gamma_change_reuses_the_shifted_stack(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
-    widget.method_combo.setCurrentText("monte_carlo")
+    widget.set_method("monte_carlo")
     widget.n_spin.setValue(10)
     slope = widget.slope
     _wait_for(qtbot, viewer, "cv", slope=slope, method="monte_carlo", n_patterns=10)
@@ -300,24 +300,66 @@ def test_layer_chooser_follows_the_viewer(make_napari_viewer, qtbot):
     assert widget.shutdown()
 
 
-def test_screenshot_shows_the_cv_layer(make_napari_viewer, qtbot):
+def _magenta_share(image):
+    """Share of pixels where the aliasing mask's magenta shows (red and blue well above green)."""
+    rgb = image[..., :3].astype(int)
+    return float(np.mean((rgb[..., 0] - rgb[..., 1] > 60) & (rgb[..., 2] - rgb[..., 1] > 60)))
+
+
+def test_default_layout_shows_refocus_mask_and_the_reduced_image_beside_it(make_napari_viewer, qtbot):
     viewer = make_napari_viewer(show=True)
-    lf = _scene()
+    lf = _scene(n_views=5, size=96)
     _add(viewer, lf, name="room")
     widget = _open_widget(viewer, qtbot)
+    widget.focus_slider.setValue(4.0)  # on the cube: the wall behind it aliases
+    _wait_for(qtbot, viewer, "mask", slope=widget.slope)
+    _idle(qtbot, widget)
+    widget.reduce()
+    fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
+    _idle(qtbot, widget)
+    refocused, cv, mask = (find_output_layer(viewer, role) for role in ("refocus", "cv", "mask"))
+    level = find_output_layer(viewer, "level")
+    # the rules: refocus and mask shown, the mask translucent over it; Cv and level map hidden;
+    # the reduced image beside the refocused one, a gap apart
+    assert refocused.visible and mask.visible and fused.visible
+    assert not cv.visible and not level.visible and not viewer.layers["room"].visible
+    assert 0 < mask.opacity < 1
+    assert fused.translate[-1] > 96 and refocused.translate[-1] == 0
+    assert cv.colorbar.visible and cv.colormap.name == "magma"
+    assert widget.legend.isVisible() and "level map" in widget.legend.text()
+    qtbot.wait(100)
+    shot = viewer.screenshot(canvas_only=True, flash=False)
+    assert shot[..., :3].std() > 20  # not blank, not one flat colour
+    columns = np.flatnonzero(shot[..., :3].max(axis=(0, 2)) > 30)  # where the two panels are drawn
+    middle = (columns[0] + columns[-1]) // 2
+    left, right = shot[:, columns[0]:middle], shot[:, middle:columns[-1]]
+    assert left[..., :3].std() > 20 and right[..., :3].std() > 20  # both panels show an image
+    assert _magenta_share(left) > 0.05 > _magenta_share(right)  # the mask marks the refocus only
+    # the Cv, once shown, covers the refocus opaquely with its own colours and a colorbar
+    cv.visible = True
+    qtbot.wait(100)
+    with_cv = viewer.screenshot(canvas_only=True, flash=False)
+    assert with_cv.shape == shot.shape
+    assert np.abs(with_cv[:, columns[0]:middle].astype(int) - left.astype(int)).mean() > 5
+    assert widget.shutdown()
+
+
+def test_cv_contrast_follows_the_data_until_the_user_sets_it(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
     cv = _wait_for(qtbot, viewer, "cv", slope=widget.slope)
     _idle(qtbot, widget)
-    for layer in viewer.layers:
-        layer.visible = layer is cv
-    viewer.reset_view()
-    qtbot.wait(50)
-    shot = viewer.screenshot(canvas_only=True, flash=False)
-    assert shot.ndim == 3 and shot[..., :3].std() > 5
-    cv.visible = False
-    qtbot.wait(50)
-    blank = viewer.screenshot(canvas_only=True, flash=False)
-    assert np.abs(shot.astype(int) - blank.astype(int)).mean() > 1
-    assert widget.shutdown()
+    threshold = widget.params().threshold
+    top = max(2 * threshold, float(np.percentile(cv.data, 99.5)))
+    assert cv.contrast_limits == pytest.approx([0.0, top], rel=1e-4)
+    widget.focus_slider.setValue(-4.0)
+    cv = _wait_for(qtbot, viewer, "cv", slope=-4.0)
+    _idle(qtbot, widget)
+    assert cv.contrast_limits[1] == pytest.approx(max(2 * threshold, float(np.percentile(cv.data, 99.5))), rel=1e-4)
+    cv.contrast_limits = [0.0, 0.5]  # the user's own choice stays
+    widget.focus_slider.setValue(1.0)
+    _wait_for(qtbot, viewer, "cv", slope=1.0)
+    _idle(qtbot, widget)
+    assert cv.contrast_limits == [0.0, 0.5]
 
 
 def test_no_worker_threads_outlive_the_widget(make_napari_viewer, qtbot):
@@ -326,7 +368,7 @@ def test_no_worker_threads_outlive_the_widget(make_napari_viewer, qtbot):
     viewer = make_napari_viewer()
     _add(viewer, _scene())
     widget = _open_widget(viewer, qtbot)
-    widget.method_combo.setCurrentText("monte_carlo")
+    widget.set_method("monte_carlo")
     widget.reduce()
     assert widget.jobs.busy()
     assert widget.shutdown()
@@ -363,7 +405,7 @@ def test_threshold_slider_is_logarithmic(qtbot):
         slider.slider.setValue(position)
         assert slider.value() == pytest.approx(expected, rel=1e-3)
     assert seen == pytest.approx([1e-4, 1e-3, 1e-2, 1.0], rel=1e-3)
-    assert slider.label.text() == "1"
+    assert slider.spin.value() == 1.0
 
 
 def test_a_failing_job_is_shown_to_the_user(scene_viewer, qtbot, monkeypatch):
@@ -383,7 +425,7 @@ def test_a_failing_job_is_shown_to_the_user(scene_viewer, qtbot, monkeypatch):
     before = len(notification_manager.records)
     widget.reduce()
     _idle(qtbot, widget)
-    assert widget.status.text() == "reduce failed: max_level: the light field is too small for 9 levels"
+    assert widget.status.text() == "reduce failed: coarsest level: the light field is too small for 9 levels"
     messages = [str(record.message) for record in notification_manager.records[before:]]
     assert any("too small for 9 levels" in message for message in messages)
     assert find_output_layer(viewer, "fused") is None
@@ -394,7 +436,7 @@ def test_monte_carlo_reports_progress_and_the_detect_button_works_when_not_live(
     viewer, widget, lf = scene_viewer
     _idle(qtbot, widget)
     widget.live_check.setChecked(False)
-    widget.method_combo.setCurrentText("monte_carlo")
+    widget.set_method("monte_carlo")
     widget.n_spin.setValue(16)
     widget.focus_slider.setValue(-2.0)
     qtbot.wait(50)
@@ -429,3 +471,160 @@ def test_focus_stays_live_while_the_detector_is_busy(scene_viewer, qtbot):
         widget.session._lock.release()
     cv = _wait_for(qtbot, viewer, "cv", slope=slope)
     np.testing.assert_array_equal(cv.data, lfa.detect_aliasing(lf, slope, skip_flat=False).cv)
+
+
+# -- no deadlock: a stopped job gives the detector back ----------------------------------------
+
+
+@pytest.fixture
+def gated_levels(monkeypatch):
+    """Detections of pyramid levels >= 1 (the reduction's second stage on) wait for ``gate``.
+
+    So a reduction is certainly running, between two of its stages, when
+    the test cancels it; the event ``entered`` is set when one waits.
+    """
+    import threading
+
+    from napari_lfalias.detect import AliasingDetector
+
+    gate, entered = threading.Event(), threading.Event()
+    detect = AliasingDetector.detect
+
+    def gated(self, slope, *args, level=0, **kwargs):
+        if level >= 1:
+            entered.set()
+            assert gate.wait(30), "the test never opened the gate"
+        return detect(self, slope, *args, level=level, **kwargs)
+
+    monkeypatch.setattr(AliasingDetector, "detect", gated)
+    yield gate, entered
+    gate.set()
+
+
+def _start_gated_reduction(qtbot, widget, entered):
+    _idle(qtbot, widget)
+    entered.clear()
+    widget.reduce()
+    qtbot.waitUntil(entered.is_set, timeout=TIMEOUT_MS)  # inside its second stage
+
+
+def test_cancel_during_a_reduction_then_a_focus_change_updates_the_cv(scene_viewer, qtbot, gated_levels):
+    viewer, widget, lf = scene_viewer
+    gate, entered = gated_levels
+    _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    _start_gated_reduction(qtbot, widget, entered)
+    widget.cancel()
+    gate.set()  # the stage ends; the job stops at its next step and gives the detector back
+    _idle(qtbot, widget)
+    assert not widget.session._lock.locked()
+    assert not widget.cancel_button.isEnabled()
+    widget.focus_slider.setValue(1.25)
+    slope = widget.slope
+    cv = _wait_for(qtbot, viewer, "cv", slope=slope)
+    np.testing.assert_array_equal(cv.data, lfa.detect_aliasing(lf, slope, skip_flat=False).cv)
+    assert find_output_layer(viewer, "fused") is None
+    # Monte Carlo after the cancel runs to its end too (it waited on the lock before)
+    widget.n_spin.setValue(12)
+    widget.set_method("monte_carlo")
+    cv = _wait_for(qtbot, viewer, "cv", slope=slope, method="monte_carlo", n_patterns=12)
+    _idle(qtbot, widget)
+    assert widget.progress.value() == 100
+    expected = lfa.detect_aliasing(lf, slope, n_patterns=12, method="monte_carlo", seed=0, skip_flat=False)
+    np.testing.assert_array_equal(cv.data, expected.cv)
+
+
+def test_a_second_reduce_click_stops_the_first_and_finishes(scene_viewer, qtbot, gated_levels):
+    viewer, widget, lf = scene_viewer
+    gate, entered = gated_levels
+    _start_gated_reduction(qtbot, widget, entered)
+    widget.reduce()  # the second click while the first reduction runs
+    assert "stopped" in widget.status.text()
+    gate.set()
+    fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
+    _idle(qtbot, widget)
+    params = widget.params()
+    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())
+    np.testing.assert_array_equal(fused.data, expected.image)
+    assert not widget.session._lock.locked() and not widget.cancel_button.isEnabled()
+    assert [layer.metadata.get("lfalias") for layer in viewer.layers].count("fused") == 1
+
+
+def test_a_reduction_stopped_by_a_focus_change_says_so(scene_viewer, qtbot, gated_levels):
+    from napari.utils.notifications import notification_manager
+
+    viewer, widget, lf = scene_viewer
+    gate, entered = gated_levels
+    _start_gated_reduction(qtbot, widget, entered)
+    before = len(notification_manager.records)
+    widget.focus_slider.setValue(-2.0)
+    assert widget.status.text().startswith("reduction stopped: the focus moved to -2.00")
+    messages = [str(record.message) for record in notification_manager.records[before:]]
+    assert any(message.startswith("reduction stopped") for message in messages)
+    gate.set()
+    _wait_for(qtbot, viewer, "cv", slope=-2.0)
+    _idle(qtbot, widget)
+    assert find_output_layer(viewer, "fused") is None and not widget.session._lock.locked()
+
+
+def test_closing_the_viewer_during_a_reduction_ends_cleanly(make_napari_viewer, qtbot, gated_levels):
+    import warnings
+
+    from qtpy.QtCore import QThreadPool
+
+    gate, entered = gated_levels
+    viewer = make_napari_viewer()
+    _add(viewer, _scene())
+    widget = _open_widget(viewer, qtbot)
+    _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    session = widget.session
+    with qtbot.capture_exceptions() as exceptions, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _start_gated_reduction(qtbot, widget, entered)
+        viewer.close()  # the widget is deleted with its window while the job runs
+        gate.set()
+        assert QThreadPool.globalInstance().waitForDone(TIMEOUT_MS)
+        qtbot.wait(100)  # the worker's last signals reach the GUI thread (and nobody)
+    assert exceptions == []
+    assert not [w for w in caught if "deleted" in str(w.message) or "aborted thread" in str(w.message)]
+    assert not session._lock.locked()  # the stopped job was closed: it holds nothing
+
+
+CLOSE_SCRIPT = """
+import napari
+from qtpy.QtCore import QTimer
+from napari_lfalias._napari._layers import lightfield_layer_data
+from napari_lfalias._napari._widget import AliasingWidget
+from napari_lfalias.synthetic import brick_room
+
+viewer = napari.Viewer(show=True)
+data, kwargs, _ = lightfield_layer_data(brick_room(n_views=8, size=256, seed=0).lightfield, "room")
+viewer.add_image(data, **kwargs)
+widget = AliasingWidget(viewer)
+viewer.window.add_dock_widget(widget)
+
+def start():
+    widget.set_method("monte_carlo")
+    widget.reduce()
+    QTimer.singleShot(60, viewer.close)  # while the reduction runs
+
+QTimer.singleShot(300, start)
+napari.run()
+print("event loop ended", flush=True)
+"""
+
+
+def test_closing_the_napari_window_mid_job_exits_the_process_cleanly(tmp_path):
+    """The whole application, as a user runs it: close the window during a reduction, then exit."""
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "close_mid_job.py"
+    script.write_text(CLOSE_SCRIPT)
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+    output = run.stdout + run.stderr
+    assert run.returncode == 0, output
+    assert "event loop ended" in run.stdout
+    for sign in ("Traceback", "has been deleted", "Fatal", "Aborted"):
+        assert sign not in output, output

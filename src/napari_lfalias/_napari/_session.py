@@ -20,22 +20,27 @@ is nil on textured scenes (no tile is flat) and small elsewhere.
 Each computation is a generator that yields ``(done, total)`` between its
 steps (and, when the Cv has to wait for the detector, a
 :class:`~._jobs.Partial` refocused image), so a worker running it reports
-progress and stops at the next yield when it is cancelled. The detector is not thread-safe: a job takes the session's lock
-around every call into it, and waits for the lock by yielding, so a job
-queued behind a reduction can still be stopped. Nothing is yielded while
-the lock is held.
+progress and stops at the next yield when it is cancelled. The detector
+is not thread-safe: a job takes the session's lock around every call into
+it, and waits for the lock by yielding, so a job queued behind a
+reduction can still be stopped. Nothing is yielded while the lock is
+held: a reduction takes it for each of its stages and gives it back
+between them, so a job stopped (or never resumed) at a yield holds no
+lock, and a focus change detects between two stages of a reduction.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ._jobs import Partial
 
-__all__ = ["DetectionParams", "AliasingSession", "focus_range"]
+__all__ = ["DetectionParams", "AliasingSession", "Preview", "focus_range", "library_defaults"]
 
 #: Largest focus slope, in pixels per view step, when the data carry no disparities.
 DEFAULT_MAX_SLOPE = 2.0
@@ -43,19 +48,89 @@ DEFAULT_MAX_SLOPE = 2.0
 MAX_SHIFT_FRACTION = 0.25
 #: How long a job waits for the detector before yielding again (seconds).
 LOCK_POLL_S = 0.02
+#: Samples (views x pixels) from which a focus change shows a half-resolution preview first:
+#: 8 x 8 x 354 x 354 and larger (the full computation takes 60 ms or more there).
+PREVIEW_MIN_SAMPLES = 8_000_000
+#: Pause between the preview and the full-resolution work (seconds): a drag of the focus
+#: slider moves on within it, and only the preview of each position is computed.
+PREVIEW_PAUSE_S = 0.06
+
+
+@dataclass(frozen=True)
+class Preview:
+    """A focus change's first result: level 1 of the pyramid, enlarged to full size (nearest pixel).
+
+    Attributes
+    ----------
+    image : ndarray, shape (Y, X, C)
+        The refocused level-1 views.
+    cv, mask : ndarray, shape (Y, X), or None
+        The exact Cv of level 1 and its mask (``None`` while the detector is busy).
+    """
+
+    image: np.ndarray
+    cv: np.ndarray | None
+    mask: np.ndarray | None
+
+
+def _enlarge(image, shape):
+    """``image`` of a pyramid level 1 enlarged to ``shape`` (each pixel a 2 x 2 block)."""
+    big = np.repeat(np.repeat(image, 2, axis=0), 2, axis=1)
+    return np.ascontiguousarray(big[: shape[0], : shape[1]])
+
+
+def _pause(seconds, step):
+    """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        time.sleep(0.005)
+        yield step
+
+
+#: Parameters of ``reduce_aliasing`` the widget has controls for (their defaults are the library's).
+LIBRARY_PARAMETERS = ("gamma", "n_patterns", "threshold", "method", "max_level", "keep_in_focus")
+#: The widget's seed: the library's default (``None``) draws new patterns on every call, which a
+#: spin box cannot show; seed 0 makes the widget repeat the API's ``seed=0`` result.
+WIDGET_SEED = 0
+
+
+def library_defaults():
+    """The library's defaults of the parameters the widget controls (from ``reduce_aliasing``'s signature).
+
+    Read, never copied, so a change of the library's defaults reaches the widget.
+
+    Examples
+    --------
+    >>> sorted(library_defaults())
+    ['gamma', 'keep_in_focus', 'max_level', 'method', 'n_patterns', 'threshold']
+    """
+    import inspect
+
+    from ..reduce import reduce_aliasing
+
+    signature = inspect.signature(reduce_aliasing).parameters
+    return {name: signature[name].default for name in LIBRARY_PARAMETERS}
+
+
+def _library_default(name):
+    return field(default_factory=lambda: library_defaults()[name])
 
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Parameters of Algorithm 1 (and 2), as the widget's controls hold them."""
+    """Parameters of Algorithm 1 (and 2), as the widget's controls hold them.
 
-    gamma: float = 0.2
-    n_patterns: int = 100
-    threshold: float = 0.02
-    method: str = "analytic"
-    seed: int = 0
-    max_level: int = 3
-    keep_in_focus: bool = False
+    Defaults are the library's (:func:`library_defaults`); the seed is
+    :data:`WIDGET_SEED`.
+    """
+
+    gamma: float = _library_default("gamma")
+    n_patterns: int = _library_default("n_patterns")
+    threshold: float = _library_default("threshold")
+    method: str = _library_default("method")
+    seed: int = WIDGET_SEED
+    max_level: int = _library_default("max_level")
+    keep_in_focus: bool = _library_default("keep_in_focus")
 
     def detect_kwargs(self):
         """Keyword arguments of ``detect_aliasing`` and ``reduce_aliasing``."""
@@ -143,6 +218,7 @@ class AliasingSession:
         self._detector = None
         self._lock = threading.Lock()
         self._last = None  # (detection key, Detection)
+        self._coarse = None  # level 1 of the light field's pyramid, for previews
 
     @property
     def source_lf(self):
@@ -158,6 +234,7 @@ class AliasingSession:
         """Drop the detector and the kept detection (a running job keeps its own reference)."""
         self._detector = None
         self._last = None
+        self._coarse = None
 
     # -- the kept detection ----------------------------------------------------
     def detection(self, slope, params):
@@ -231,16 +308,28 @@ class AliasingSession:
 
         Returns a job that yields ``(done, total)`` steps and returns
         ``(image, detection)``: the refocused image ``(Y, X, C)`` and the
-        Detection (``None`` without ``detect``). The refocus needs no lock;
-        when the detector is busy (a reduction runs), the image is yielded
-        at once as a :class:`~._jobs.Partial` and the job then waits for the
-        detector. Otherwise both come together, so the viewer updates (and
-        redraws) once per focus change.
+        Detection (``None`` without ``detect``).
+
+        Early results come as :class:`~._jobs.Partial` values:
+
+        - a :class:`Preview` first, for a light field large enough
+          (:meth:`previews`): the refocus and Cv of the pyramid's level 1
+          (half the resolution, a quarter of the work), shown at full size;
+          the job then pauses :data:`PREVIEW_PAUSE_S` so that a newer focus
+          change stops it before the full-resolution work;
+        - the refocused image alone, when the detector is busy (a reduction
+          runs): the refocus needs no lock, the Cv waits for the detector.
+
+        Otherwise image and detection come together, so the viewer updates
+        (and redraws) once per focus change.
         """
         from .. import refocus
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
+        if self.previews():
+            yield Partial(self._preview(detector, slope, params if detect else None))
+            yield from _pause(PREVIEW_PAUSE_S, (1, 2))
         image = refocus(detector.lf, slope)
         if not detect:
             return image, None
@@ -252,6 +341,29 @@ class AliasingSession:
         finally:
             self._lock.release()
         return image, detection
+
+    def previews(self):
+        """True if a focus change shows a half-resolution preview first (light fields of at least
+        :data:`PREVIEW_MIN_SAMPLES` samples per channel)."""
+        lf = self._source
+        return lf.n_views * lf.image_shape[0] * lf.image_shape[1] >= PREVIEW_MIN_SAMPLES
+
+    def _preview(self, detector, slope, params):
+        """The :class:`Preview` at ``slope``: level-1 refocus (and Cv, when the detector is free)."""
+        from .. import refocus
+        from ..pyramid import lightfield_pyramid
+
+        if self._coarse is None:
+            self._coarse = lightfield_pyramid(detector.lf, 1)[1]
+        shape = detector.lf.image_shape
+        image = _enlarge(refocus(self._coarse, slope / 2), shape)
+        if params is None or not self._lock.acquire(blocking=False):
+            return Preview(image, None, None)
+        try:
+            coarse = detector.detect(slope, level=1, **params.detect_kwargs())
+        finally:
+            self._lock.release()
+        return Preview(image, _enlarge(coarse.cv, shape), _enlarge(coarse.mask, shape))
 
     def detect(self, slope, params):
         """Detect aliasing at ``slope`` (reusing the detector's shifted views).
@@ -273,11 +385,28 @@ class AliasingSession:
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
-        yield from self._wait((0, 2))
-        try:
-            # the core's own steps: progress per stage, and a quit() takes effect between two of them
-            return (yield from iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
-                                                    keep_in_focus=params.keep_in_focus, detector=detector,
-                                                    **params.detect_kwargs()))
-        finally:
-            self._lock.release()
+        # the core's own steps: progress per stage, and a quit() takes effect between two of them
+        stages = iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
+                                      keep_in_focus=params.keep_in_focus, detector=detector,
+                                      **params.detect_kwargs())
+        return (yield from self._stepwise(stages, (0, 2)))
+
+    def _stepwise(self, stages, waiting):
+        """Run the generator ``stages`` one step at a time under the lock, free between steps.
+
+        The lock is taken (by yielding ``waiting``) for each step and given
+        back before its progress is yielded, so a focus change can detect
+        between two stages of a reduction, and a job stopped at a yield
+        holds nothing. Closing this generator closes ``stages``.
+        """
+        with contextlib.closing(stages):
+            while True:
+                yield from self._wait(waiting)
+                try:
+                    step = next(stages)
+                except StopIteration as done:
+                    return done.value
+                finally:
+                    self._lock.release()
+                yield step
+                waiting = step if isinstance(step, tuple) else waiting

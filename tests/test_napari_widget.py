@@ -628,3 +628,228 @@ def test_closing_the_napari_window_mid_job_exits_the_process_cleanly(tmp_path):
     assert "event loop ended" in run.stdout
     for sign in ("Traceback", "has been deleted", "Fatal", "Aborted"):
         assert sign not in output, output
+
+
+# -- controls that explain themselves ---------------------------------------------------------
+
+
+def test_every_control_explains_itself_in_gui_words(scene_viewer):
+    from qtpy.QtWidgets import QFormLayout
+
+    viewer, widget, lf = scene_viewer
+    form = widget.layout().itemAt(0).layout()
+    assert isinstance(form, QFormLayout)
+    labels = []
+    for row in range(form.rowCount()):
+        field = form.itemAt(row, QFormLayout.ItemRole.FieldRole).widget()
+        label = form.itemAt(row, QFormLayout.ItemRole.LabelRole)
+        if label is not None and label.widget() is not None and label.widget().text():
+            labels.append(label.widget().text())
+        assert field.toolTip(), f"row {row} has no tooltip"
+    for button in (widget.live_check, widget.update_button, widget.reduce_button, widget.cancel_button):
+        assert button.toolTip()
+    # no clash with napari's display gamma, no Python or CLI names
+    assert "gamma" not in " ".join(labels) and "relaxation \u03b3" in labels
+    assert "not the display gamma" in widget.gamma_spin.toolTip()
+    assert not any("_" in label or "--" in label for label in labels)
+    # T's measured meaning, and what it means for this light field (5 x 5 views at gamma 0.2)
+    assert "F1" in widget.threshold_slider.toolTip()
+    from napari_lfalias.detect import variance_factors
+
+    root_c = float(np.sqrt(variance_factors(25, 0.2)[25]))
+    spread = widget.params().threshold / root_c
+    assert f"{spread:.0%}" in widget.threshold_hint.text() and "25 views" in widget.threshold_hint.text()
+
+
+def test_n_and_seed_only_for_monte_carlo_and_they_never_recompute_the_exact_cv(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    _idle(qtbot, widget)
+    assert widget.method == "analytic"
+    assert not widget.n_spin.isEnabled() and not widget.seed_spin.isEnabled()
+    updates = []
+    widget.outputs_updated.connect(lambda role, params: updates.append(role))
+    widget.n_spin.setValue(37)
+    widget.seed_spin.setValue(5)
+    assert not widget.jobs.busy()
+    qtbot.wait(50)
+    assert updates == []
+    widget.set_method("monte_carlo")
+    assert widget.n_spin.isEnabled() and widget.seed_spin.isEnabled()
+    cv = _wait_for(qtbot, viewer, "cv", slope=widget.slope, method="monte_carlo", n_patterns=37, seed=5)
+    expected = lfa.detect_aliasing(lf, widget.slope, n_patterns=37, method="monte_carlo", seed=5,
+                                   skip_flat=False)
+    np.testing.assert_array_equal(cv.data, expected.cv)
+
+
+def test_threshold_can_be_typed(scene_viewer, qtbot):
+    from qtpy.QtCore import Qt
+
+    viewer, widget, lf = scene_viewer
+    cv = _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    _idle(qtbot, widget)
+    box = widget.threshold_slider.spin
+    box.selectAll()
+    qtbot.keyClicks(box, "0.0037")
+    assert widget.params().threshold != pytest.approx(0.0037)  # not per keystroke
+    qtbot.keyClick(box, Qt.Key.Key_Return)
+    assert widget.params().threshold == pytest.approx(0.0037)
+    mask = _wait_for(qtbot, viewer, "mask", threshold=widget.params().threshold)
+    np.testing.assert_array_equal(mask.data.astype(bool), cv.data > np.float32(0.0037))
+
+
+def test_the_controls_show_the_librarys_defaults(make_napari_viewer, qtbot, monkeypatch):
+    import inspect
+
+    from napari_lfalias import reduce as reduce_module
+    from napari_lfalias._napari._session import DetectionParams, library_defaults
+
+    signature = inspect.signature(reduce_module.reduce_aliasing).parameters
+    defaults = library_defaults()
+    assert defaults == {name: signature[name].default for name in defaults}
+    viewer = make_napari_viewer()
+    widget = _open_widget(viewer, qtbot)
+    shown = widget.params()
+    assert {name: getattr(shown, name) for name in defaults} == defaults
+    assert widget.shutdown()
+
+    # a change of the library's defaults reaches the widget (nothing is copied)
+    def changed(lf, slope, gamma=0.3, n_patterns=50, threshold=0.004, max_level=2, method="analytic",
+                seed=None, *, keep_in_focus=True):
+        raise AssertionError("not called")
+
+    monkeypatch.setattr(reduce_module, "reduce_aliasing", changed)
+    assert DetectionParams().threshold == 0.004 and DetectionParams().max_level == 2
+    other = AliasingWidget(viewer)
+    params = other.params()
+    assert (params.gamma, params.n_patterns, params.threshold, params.max_level, params.keep_in_focus) == (
+        0.3, 50, pytest.approx(0.004), 2, True)
+    assert other.shutdown()
+
+
+# -- nothing silent ---------------------------------------------------------------------------
+
+
+def test_renaming_the_light_field_layer_is_followed(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    cv = _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    _idle(qtbot, widget)
+    cv.name = "my Cv"  # a name the user chose stays
+    viewer.layers["lf"].name = "scene A"
+    assert widget.layer_combo.currentText() == "scene A" and widget.layer_combo.count() == 1
+    assert widget.source == "scene A"
+    refocused = find_output_layer(viewer, "refocus")
+    assert refocused.metadata["lfalias_source"] == "scene A" and refocused.name == "refocused [scene A]"
+    assert cv.name == "my Cv" and cv.metadata["lfalias_source"] == "scene A"
+    widget.focus_slider.setValue(0.5)  # the outputs are still found and updated in place
+    _wait_for(qtbot, viewer, "cv", slope=0.5)
+    _idle(qtbot, widget)
+    roles = [layer.metadata.get("lfalias") for layer in viewer.layers if layer.metadata.get("lfalias")]
+    assert sorted(roles) == ["cv", "mask", "refocus"]
+
+
+def test_a_large_light_field_shows_a_preview_then_the_full_result(make_napari_viewer, qtbot):
+    viewer = make_napari_viewer()
+    lf = lfa.LightField(np.random.default_rng(2).random((8, 8, 368, 368, 1), dtype=np.float32))
+    _add(viewer, lf)
+    widget = _open_widget(viewer, qtbot)
+    assert widget.session.previews()
+    _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    _idle(qtbot, widget)
+    seen = []
+    widget.outputs_updated.connect(lambda role, params: seen.append((role, bool(params.get("preview")))))
+    widget.focus_slider.setValue(1.0)
+    qtbot.waitUntil(lambda: ("cv", False) in seen, timeout=TIMEOUT_MS)
+    _idle(qtbot, widget)
+    assert seen.index(("refocus", True)) < seen.index(("refocus", False))
+    assert ("cv", True) in seen and ("mask", True) in seen
+    refocused, cv = find_output_layer(viewer, "refocus"), find_output_layer(viewer, "cv")
+    assert not refocused.metadata["lfalias_params"].get("preview")
+    np.testing.assert_array_equal(refocused.data, lfa.refocus(lf, 1.0)[..., 0])
+    np.testing.assert_array_equal(cv.data, lfa.detect_aliasing(lf, 1.0, skip_flat=False).cv)
+    assert widget.shutdown()
+
+
+# -- honest progress ----------------------------------------------------------------------------
+
+
+def test_while_the_kernels_compile_the_widget_says_so(scene_viewer, qtbot, monkeypatch):
+    from napari_lfalias._napari import _warmup
+
+    viewer, widget, lf = scene_viewer
+    _idle(qtbot, widget)
+    state = {"now": "compiling"}
+    monkeypatch.setattr(_warmup, "state", lambda: state["now"])
+    widget._warm_timer.start()
+    widget.focus_slider.setValue(0.25)  # a job that would wait for the kernels
+    qtbot.waitUntil(lambda: "compiling the numeric kernels (first use only" in widget.status.text(),
+                    timeout=TIMEOUT_MS)
+    assert widget.progress.maximum() == 0  # a busy bar, not "100 %"
+    state["now"] = "ready"
+    qtbot.waitUntil(lambda: "compiling" not in widget.status.text(), timeout=TIMEOUT_MS)
+    _idle(qtbot, widget)
+    assert widget.progress.maximum() == 100 and widget.progress.value() == 100
+    assert widget.status.text().startswith("slope 0.25")
+
+
+def test_the_warm_up_compiles_in_the_background_and_reports_it(monkeypatch):
+    import threading
+
+    from napari_lfalias._napari import _warmup
+
+    release = threading.Event()
+    ran = []
+    monkeypatch.setattr(_warmup, "STEPS", (("slow kernel", lambda lf: (ran.append(1), release.wait(10))),))
+    monkeypatch.setattr(_warmup, "COMPILING_AFTER_S", 0.05)
+    monkeypatch.setattr(_warmup, "_thread", None)
+    monkeypatch.setattr(_warmup, "_done", threading.Event())
+    monkeypatch.setattr(_warmup, "_compiled", [])
+    assert _warmup.state() == "idle"
+    thread = _warmup.start()
+    assert _warmup.start() is thread  # once per process
+    import time
+
+    time.sleep(0.2)
+    assert _warmup.state() == "compiling" and ran == [1]
+    release.set()
+    assert _warmup.wait(10) and _warmup.state() == "ready"
+    assert _warmup._compiled == ["slow kernel"]
+
+
+def test_the_plugin_starts_the_warm_up_when_napari_activates_it(make_napari_viewer):
+    from npe2 import PluginManager
+
+    from napari_lfalias._napari import _warmup
+
+    make_napari_viewer()
+    PluginManager.instance().activate("napari-lfalias")
+    assert _warmup.state() in ("loading", "compiling", "ready")
+    assert _warmup.wait(120)
+
+
+# -- physical scale -----------------------------------------------------------------------------
+
+
+def test_a_microscope_light_field_and_its_outputs_carry_micrometres(make_napari_viewer, qtbot):
+    from napari_lfalias._napari._optics import spatial_calibration
+
+    viewer = make_napari_viewer()
+    viewer.open_sample("napari-lfalias", "guv")
+    layer = viewer.layers[0]
+    lf = layer.metadata["lightfield"]
+    where = spatial_calibration(lf)
+    optics = lf.meta["microscope"]
+    pitch_um = lf.meta["grid"].pitch * optics["pixel_size_um"] / optics["magnification"]
+    assert where.unit == "um" and where.scale[1] == pytest.approx(pitch_um)
+    assert 1.5 < pitch_um < 1.8  # 15.4 px of 6.5 um behind a 60x objective
+    assert [str(unit) for unit in layer.units[-2:]] == ["micrometer", "micrometer"]
+    assert tuple(layer.scale[-2:]) == pytest.approx(where.scale)
+    widget = _open_widget(viewer, qtbot)
+    cv = _wait_for(qtbot, viewer, "cv", slope=widget.slope)
+    for output in (cv, find_output_layer(viewer, "refocus"), find_output_layer(viewer, "mask")):
+        assert tuple(output.scale) == pytest.approx(where.scale)
+        assert [str(unit) for unit in output.units] == ["micrometer", "micrometer"]
+    from napari_lfalias._napari._widget import scale_bar
+
+    assert scale_bar(viewer).visible
+    assert widget.shutdown()

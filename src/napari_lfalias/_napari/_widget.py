@@ -101,9 +101,18 @@ TOOLTIPS = {
     "detect": "Refocus and detect aliasing with the current settings.",
     "reduce": "Reduce the aliasing (Algorithm 2): the reduced image appears beside the refocused one.",
     "cancel": "Stop the running computation; its result is dropped.",
+    "depth": "Where the calibration allows it: the distance (camera arrays with HCI parameters) or the "
+             "axial position (light-field microscopes) of the plane in focus.",
     "beside": "Show the reduced image (and its level map) beside the refocused image; "
               "off: over it, to compare by toggling.",
 }
+
+
+def scale_bar(viewer):
+    """The viewer's scale bar (``viewer.canvas.overlays`` since napari 0.9, ``viewer.scale_bar`` before)."""
+    canvas = getattr(viewer, "canvas", None)
+    overlays = getattr(canvas, "overlays", None)
+    return overlays.scale_bar if overlays is not None else viewer.scale_bar
 
 
 def _level_legend(highest):
@@ -205,7 +214,8 @@ class AliasingWidget(QWidget):
             label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
 
         tips = (
-            (self.layer_combo, "layer"), (self.focus_slider, "focus"), (self.gamma_spin, "gamma"),
+            (self.layer_combo, "layer"), (self.focus_slider, "focus"), (self.depth_label, "depth"),
+            (self.gamma_spin, "gamma"),
             (self.n_spin, "n"), (self.threshold_slider, "threshold"), (self.threshold_hint, "threshold"),
             (self.method_combo, "method"), (self.level_spin, "level"), (self.seed_spin, "seed"),
             (self.keep_check, "keep"), (self.live_check, "live"), (self.update_button, "detect"),
@@ -578,7 +588,7 @@ class AliasingWidget(QWidget):
             self._source_layer.visible = False  # the opaque refocused image covers the views
         if role in ("refocus", "fused"):
             if placement(self._source_layer, role)["units"][0] != "pixel":
-                self.viewer.scale_bar.visible = True
+                scale_bar(self.viewer).visible = True
             self.viewer.reset_view()
 
     def _source_contrast(self):

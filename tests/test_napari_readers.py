@@ -3,6 +3,7 @@
 Run under ``xvfb-run``.
 """
 
+import os
 import shutil
 
 import numpy as np
@@ -301,3 +302,99 @@ def test_saved_lightfield_opens_with_positions_and_meta(make_napari_viewer, tmp_
     # a plain TIFF beside it is not claimed by this reader
     iio.imwrite(tmp_path / "plain.tif", np.zeros((12, 10), np.uint16))
     assert _reader.get_saved_lightfield_reader(str(tmp_path / "plain.tif")) is None
+
+
+# -- readers say why ------------------------------------------------------------------------
+
+
+def _notifications_since(count):
+    from napari.utils.notifications import notification_manager
+
+    return [str(record.message) for record in notification_manager.records[count:]]
+
+
+def _choose_in_the_reader_dialog(monkeypatch, choice):
+    """Answer napari's "Choose reader" dialog with ``choice`` (a display name); record what it showed."""
+    from napari._qt.dialogs import qt_reader_dialog
+
+    shown = {}
+
+    def answer(dialog):
+        shown["readers"] = [button.text() for button in dialog.reader_btn_group.buttons()]
+        return choice, False
+
+    monkeypatch.setattr(qt_reader_dialog.QtReaderDialog, "get_user_choices", answer)
+    return shown
+
+
+def test_a_partial_camera_array_shows_the_librarys_reason(make_napari_viewer, lf_data, tmp_path, monkeypatch):
+    from napari.utils.notifications import notification_manager
+
+    from napari_lfalias._napari._controls import PLUGIN_MENU
+
+    folder = tmp_path / "antinous_partial"
+    folder.mkdir()
+    for index in range(81):
+        if index != 40:  # the centre view is missing
+            (folder / f"input_Cam{index:03d}.png").symlink_to(lf_data / "hci_antinous" / f"input_Cam{index:03d}.png")
+    assert _reader.get_camera_array_reader(str(folder)) is not None  # claimed: it looks like ours
+    viewer = make_napari_viewer()
+    shown = _choose_in_the_reader_dialog(monkeypatch, PLUGIN_MENU)
+    before = len(notification_manager.records)
+    # as File > Open Folder does: napari's own reader claims folders too, so it asks which to use
+    with pytest.raises(_reader.ReadError) as info:
+        viewer.window._qt_viewer._qt_open([str(folder)], stack=False)
+    assert PLUGIN_MENU in shown["readers"]  # the choice says what this reader opens
+    reason = "1 of 81 views of the 9x9 grid are missing: input_Cam040.png"
+    assert reason in str(info.value)
+    assert any(reason in message for message in _notifications_since(before))
+    assert "pass grid=" not in str(info.value)  # GUI words, not Python or CLI ones
+    assert len(viewer.layers) == 0
+
+
+def test_a_lenslet_capture_without_its_white_image_says_what_to_do(make_napari_viewer, lf_data, tmp_path):
+    from napari.utils.notifications import notification_manager
+
+    shutil.copy(lf_data / "napari_lf_guv" / GUV[0], tmp_path / GUV[0])  # no white image beside it
+    viewer = make_napari_viewer()
+    before = len(notification_manager.records)
+    with pytest.raises(_reader.ReadError) as info:
+        viewer.open(tmp_path / GUV[0], plugin=PLUGIN)
+    message = str(info.value)
+    assert GUV[0] in message and "needs a white image" in message
+    assert "File > Open Files as Stack" in message and "Lenslet conversion" in message
+    assert "--white" not in message and "white=..." not in message
+    assert any("needs a white image" in text for text in _notifications_since(before))
+
+
+def test_making_this_plugin_the_default_reader_as_the_guide_says(make_napari_viewer, tmp_path):
+    """docs/napari.md: ``extension2reader`` (Preferences > Plugins) picks this plugin without asking."""
+    from napari.settings import get_settings
+
+    from napari_lfalias.io_write import write_lightfield
+
+    lf = lfa.LightField(np.random.default_rng(1).random((2, 3, 8, 8, 1), dtype=np.float32))
+    path = write_lightfield(tmp_path / "views.tif", lf)
+    folder = _write_views(tmp_path / "array", _views(), lambda u, v, n: f"view_{u:02d}_{v:02d}.png")
+    viewer = make_napari_viewer()
+    settings = get_settings().plugins
+    kept = dict(settings.extension2reader)
+    try:
+        settings.extension2reader = {**kept, "*.tif": PLUGIN, f"{tmp_path}{os.sep}*{os.sep}": PLUGIN}
+        layers = viewer.open(path, plugin=None)  # as File > Open does: no plugin named
+        assert lightfield_of(layers[0]).grid_shape == (2, 3)
+        layers = viewer.open(folder, plugin=None)
+        assert lightfield_of(layers[0]).grid_shape == (3, 3)
+    finally:
+        settings.extension2reader = kept
+
+
+def test_two_captures_of_the_same_name_open_as_two_names(make_napari_viewer, lf_data, tmp_path):
+    source = lf_data / "napari_lf_guv"
+    for folder in ("day1", "day2"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(source / GUV[0], tmp_path / folder / "light_field.tif")
+        shutil.copy(source / GUV[1], tmp_path / folder / "light_field_white.tif")
+    viewer = make_napari_viewer()
+    names = [viewer.open(tmp_path / folder / "light_field.tif", plugin=PLUGIN)[0].name for folder in ("day1", "day2")]
+    assert names == ["light_field (day1)", "light_field (day2)"]

@@ -31,7 +31,7 @@ from qtpy.QtWidgets import (
 from ._controls import report_failure
 from ._jobs import JobRunner
 from ._layers import ROLE_KEY, lightfield_layer_data
-from ._reader import find_calibration_frames
+from ._reader import capture_name, find_calibration_frames
 
 __all__ = ["LensletConversionWidget", "FileField"]
 
@@ -287,7 +287,7 @@ class LensletConversionWidget(QWidget):
         def done(lf):
             if grid is None:
                 self._keep_grid(lf.meta["grid"], (white, dark, kind))
-            data, kwargs, _ = lightfield_layer_data(lf, raw.stem)
+            data, kwargs, _ = lightfield_layer_data(lf, capture_name(raw))
             self.viewer.add_image(data, **kwargs)
             self._frame_lightfield()
             rows, cols = lf.grid_shape

@@ -49,6 +49,7 @@ __all__ = [
     "is_camera_array_folder",
     "ReadError",
     "MIN_CAPTURE_SIDE",
+    "capture_name",
 ]
 
 #: Fewest views that make a folder a light field.
@@ -367,7 +368,7 @@ def get_lenslet_reader(path):
         given = _given(paths)
         if given is None or _saved_header(given[0]) is not None:
             return None
-        return _read_with(given[0], _capture_name(given[0]), given[1])
+        return _read_with(given[0], capture_name(given[0]), given[1])
     path = paths[0]
     if path.suffix.lower() not in _IMAGE_SUFFIXES or _is_calibration_frame(path) or not path.is_file():
         return None
@@ -376,10 +377,10 @@ def get_lenslet_reader(path):
     options = _beside(path)
     if options is None and not _could_be_a_capture(path):
         return None
-    return _read_with(path, _capture_name(path), options or {})
+    return _read_with(path, capture_name(path), options or {})
 
 
-def _capture_name(path):
+def capture_name(path):
     """Layer name of a capture: its file name and folder (``light_field (antleg)``), so two differ."""
     folder = path.parent.name
     return f"{path.stem} ({folder})" if folder else path.stem
@@ -468,7 +469,7 @@ def get_lytro_reader(path):
         return None
     if _is_calibration_frame(path) or not _is_lytro_file(path):
         return None
-    return _read_with(path, _capture_name(path), _beside(path) or {})
+    return _read_with(path, capture_name(path), _beside(path) or {})
 
 
 # -- the reader function ----------------------------------------------------

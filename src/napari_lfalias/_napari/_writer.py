@@ -6,7 +6,7 @@
 - a light-field layer is written by
   :func:`napari_lfalias.io_write.write_lightfield` (an ImageJ hyperstack
   ``.tif`` or a ``.zarr`` store, with its view positions, weights and
-  metadata), which the plugin's readers (and ``lfa.load``) open again;
+  metadata), which the plugin's readers (and ``io_write.read_lightfield``) open again;
 - an output of the aliasing widget (refocused image, Cv, mask, level map,
   reduced image) is written as a float (or integer) TIFF whose JSON
   description holds its role, the light-field layer it came from, the

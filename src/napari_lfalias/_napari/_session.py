@@ -32,6 +32,7 @@ lock, and a focus change detects between two stages of a reduction.
 from __future__ import annotations
 
 import contextlib
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -48,9 +49,12 @@ DEFAULT_MAX_SLOPE = 2.0
 MAX_SHIFT_FRACTION = 0.25
 #: How long a job waits for the detector before yielding again (seconds).
 LOCK_POLL_S = 0.02
-#: Samples (views x pixels) from which a focus change shows a half-resolution preview first:
+#: Samples (views x pixels) from which a focus change shows a coarse preview first:
 #: 8 x 8 x 354 x 354 and larger (the full computation takes 60 ms or more there).
 PREVIEW_MIN_SAMPLES = 8_000_000
+#: Most samples (views x pixels) a preview works on: its pyramid level is the first at or below
+#: it (level 2, a quarter of the resolution, for 9 x 9 x 512 x 512), so it takes ~15 ms.
+PREVIEW_SAMPLES = 1_500_000
 #: Pause between the preview and the full-resolution work (seconds): a drag of the focus
 #: slider moves on within it, and only the preview of each position is computed.
 PREVIEW_PAUSE_S = 0.06
@@ -58,24 +62,28 @@ PREVIEW_PAUSE_S = 0.06
 
 @dataclass(frozen=True)
 class Preview:
-    """A focus change's first result: level 1 of the pyramid, enlarged to full size (nearest pixel).
+    """A focus change's first result: a coarse pyramid level, enlarged to full size (nearest pixel).
 
     Attributes
     ----------
     image : ndarray, shape (Y, X, C)
-        The refocused level-1 views.
+        The refocused views of the level.
     cv, mask : ndarray, shape (Y, X), or None
-        The exact Cv of level 1 and its mask (``None`` while the detector is busy).
+        The exact Cv of the level and its mask (``None`` while the detector is busy).
+    level : int
+        The pyramid level (each of its pixels is a ``2**level`` square block).
     """
 
     image: np.ndarray
     cv: np.ndarray | None
     mask: np.ndarray | None
+    level: int = 1
 
 
-def _enlarge(image, shape):
-    """``image`` of a pyramid level 1 enlarged to ``shape`` (each pixel a 2 x 2 block)."""
-    big = np.repeat(np.repeat(image, 2, axis=0), 2, axis=1)
+def _enlarge(image, shape, level):
+    """``image`` of pyramid ``level`` enlarged to ``shape`` (each pixel a ``2**level`` square block)."""
+    factor = 2**level
+    big = np.repeat(np.repeat(image, factor, axis=0), factor, axis=1)
     return np.ascontiguousarray(big[: shape[0], : shape[1]])
 
 
@@ -218,7 +226,7 @@ class AliasingSession:
         self._detector = None
         self._lock = threading.Lock()
         self._last = None  # (detection key, Detection)
-        self._coarse = None  # level 1 of the light field's pyramid, for previews
+        self._coarse = None  # the preview level of the light field's pyramid
 
     @property
     def source_lf(self):
@@ -313,8 +321,8 @@ class AliasingSession:
         Early results come as :class:`~._jobs.Partial` values:
 
         - a :class:`Preview` first, for a light field large enough
-          (:meth:`previews`): the refocus and Cv of the pyramid's level 1
-          (half the resolution, a quarter of the work), shown at full size;
+          (:meth:`previews`): the refocus and Cv of a coarse pyramid level
+          (:meth:`preview_level`), shown at full size;
           the job then pauses :data:`PREVIEW_PAUSE_S` so that a newer focus
           change stops it before the full-resolution work;
         - the refocused image alone, when the detector is busy (a reduction
@@ -342,28 +350,36 @@ class AliasingSession:
             self._lock.release()
         return image, detection
 
-    def previews(self):
-        """True if a focus change shows a half-resolution preview first (light fields of at least
-        :data:`PREVIEW_MIN_SAMPLES` samples per channel)."""
+    def _samples(self):
         lf = self._source
-        return lf.n_views * lf.image_shape[0] * lf.image_shape[1] >= PREVIEW_MIN_SAMPLES
+        return lf.n_views * lf.image_shape[0] * lf.image_shape[1]
+
+    def previews(self):
+        """True if a focus change shows a coarse preview first (light fields of at least
+        :data:`PREVIEW_MIN_SAMPLES` samples per channel)."""
+        return self._samples() >= PREVIEW_MIN_SAMPLES
+
+    def preview_level(self):
+        """The pyramid level previews are computed on: the first with at most :data:`PREVIEW_SAMPLES`."""
+        return max(1, math.ceil(math.log(self._samples() / PREVIEW_SAMPLES, 4)))
 
     def _preview(self, detector, slope, params):
-        """The :class:`Preview` at ``slope``: level-1 refocus (and Cv, when the detector is free)."""
+        """The :class:`Preview` at ``slope``: a coarse refocus (and Cv, when the detector is free)."""
         from .. import refocus
         from ..pyramid import lightfield_pyramid
 
+        level = self.preview_level()
         if self._coarse is None:
-            self._coarse = lightfield_pyramid(detector.lf, 1)[1]
+            self._coarse = lightfield_pyramid(detector.lf, level)[level]
         shape = detector.lf.image_shape
-        image = _enlarge(refocus(self._coarse, slope / 2), shape)
+        image = _enlarge(refocus(self._coarse, slope / 2**level), shape, level)
         if params is None or not self._lock.acquire(blocking=False):
-            return Preview(image, None, None)
+            return Preview(image, None, None, level)
         try:
-            coarse = detector.detect(slope, level=1, **params.detect_kwargs())
+            coarse = detector.detect(slope, level=level, **params.detect_kwargs())
         finally:
             self._lock.release()
-        return Preview(image, _enlarge(coarse.cv, shape), _enlarge(coarse.mask, shape))
+        return Preview(image, _enlarge(coarse.cv, shape, level), _enlarge(coarse.mask, shape, level), level)
 
     def detect(self, slope, params):
         """Detect aliasing at ``slope`` (reusing the detector's shifted views).

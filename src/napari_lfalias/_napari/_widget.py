@@ -599,14 +599,14 @@ class AliasingWidget(QWidget):
                    contrast_limits=self._source_contrast())
 
     def _show_preview(self, preview, slope, params):
-        """The half-resolution first result of a focus change (refined by the full one)."""
-        self._show_refocus(preview.image, slope, preview=True)
+        """The coarse first result of a focus change (refined by the full one)."""
+        self._show_refocus(preview.image, slope, preview=preview.level)
         if preview.cv is not None:
-            meta = self._meta(slope, params, preview=True)
+            meta = self._meta(slope, params, preview=preview.level)
             self._show("cv", preview.cv, meta,
                        contrast_limits=adaptive_limits(preview.cv, at_least=2 * params.threshold))
             self._show("mask", preview.mask.astype(np.uint8), meta)
-        self._set_status(f"slope {slope:.2f}: preview at half resolution...")
+        self._set_status(f"slope {slope:.2f}: preview at 1/{2**preview.level} of the resolution...")
 
     def _show_detection(self, detection, slope, with_cv=True):
         """Show the Cv map and the mask (only the mask when just T changed).

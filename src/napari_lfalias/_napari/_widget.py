@@ -335,9 +335,12 @@ class AliasingWidget(QWidget):
         self.focus_slider.blockSignals(False)
         self._show_depth()
         self._show_threshold_meaning()
+        live = self.live_check.isChecked()
+        then = ("preparing it (once per layer: reading it, its luminance and tile ranges)..." if live
+                else "press Detect")
         self._set_status(f"{layer.name}: {lf.grid_shape[0]}x{lf.grid_shape[1]} views of "
-                         f"{lf.image_shape[0]}x{lf.image_shape[1]}")
-        if self.live_check.isChecked():
+                         f"{lf.image_shape[0]}x{lf.image_shape[1]}; {then}")
+        if live:
             self.update_now()
 
     # -- parameters -----------------------------------------------------------------

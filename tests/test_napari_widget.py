@@ -290,6 +290,8 @@ def test_layer_chooser_follows_the_viewer(make_napari_viewer, qtbot):
     lf = lfa.LightField(np.random.default_rng(0).random((3, 3, 16, 16, 1), dtype=np.float32))
     _add(viewer, lf, name="small")
     assert widget.layer_combo.currentText() == "small"
+    # the first job of a layer says what it does, with a busy bar (not "100 %")
+    assert "preparing it" in widget.status.text() and widget.progress.maximum() == 0
     # no disparities in the metadata: the default +/-2 px range
     assert (widget.focus_slider.minimum(), widget.focus_slider.maximum()) == (-2.0, 2.0)
     refocused = _wait_for(qtbot, viewer, "refocus", slope=widget.slope)

@@ -5,6 +5,7 @@ Run under ``xvfb-run``.
 
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -398,3 +399,18 @@ def test_two_captures_of_the_same_name_open_as_two_names(make_napari_viewer, lf_
     viewer = make_napari_viewer()
     names = [viewer.open(tmp_path / folder / "light_field.tif", plugin=PLUGIN)[0].name for folder in ("day1", "day2")]
     assert names == ["light_field (day1)", "light_field (day2)"]
+
+
+def test_the_names_napari_shows_say_what_the_plugin_and_each_reader_do():
+    from npe2 import PluginManifest
+
+    import napari_lfalias
+    from napari_lfalias._napari._controls import PLUGIN_MENU
+
+    manifest = PluginManifest.from_file(Path(napari_lfalias.__file__).parent / "napari.yaml")
+    assert manifest.display_name == PLUGIN_MENU  # what the reader and writer choices list
+    titles = {command.id.split(".")[-1]: command.title for command in manifest.contributions.commands}
+    assert "folder of views" in titles["read_camera_array"] and "lenslet" in titles["read_lenslet"]
+    assert "Lytro" in titles["read_lytro"] and "saved" in titles["read_saved"]
+    assert {writer.display_name for writer in manifest.contributions.writers} == {
+        "light field or aliasing output", "aliasing mask or level map"}

@@ -55,6 +55,10 @@ PREVIEW_MIN_SAMPLES = 8_000_000
 #: Most samples (views x pixels) a preview works on: its pyramid level is the first at or below
 #: it (level 2, a quarter of the resolution, for 9 x 9 x 512 x 512), so it takes ~15 ms.
 PREVIEW_SAMPLES = 1_500_000
+#: Time a preview should take (seconds): slower (a loaded machine), the next one is one level coarser.
+PREVIEW_BUDGET_S = 0.025
+#: Smallest side (pixels) of a preview level.
+PREVIEW_MIN_SIDE = 32
 #: Pause between the preview and the full-resolution work (seconds): a drag of the focus
 #: slider moves on within it, and only the preview of each position is computed.
 PREVIEW_PAUSE_S = 0.06
@@ -226,7 +230,8 @@ class AliasingSession:
         self._detector = None
         self._lock = threading.Lock()
         self._last = None  # (detection key, Detection)
-        self._coarse = None  # the preview level of the light field's pyramid
+        self._pyramid = None  # the light field's pyramid down to the coarsest preview level
+        self._coarser = 0  # 1 while previews on the base level take longer than their budget
 
     @property
     def source_lf(self):
@@ -242,7 +247,7 @@ class AliasingSession:
         """Drop the detector and the kept detection (a running job keeps its own reference)."""
         self._detector = None
         self._last = None
-        self._coarse = None
+        self._pyramid = None
 
     # -- the kept detection ----------------------------------------------------
     def detection(self, slope, params):
@@ -360,7 +365,16 @@ class AliasingSession:
         return self._samples() >= PREVIEW_MIN_SAMPLES
 
     def preview_level(self):
-        """The pyramid level previews are computed on: the first with at most :data:`PREVIEW_SAMPLES`."""
+        """The pyramid level previews are computed on.
+
+        The first level with at most :data:`PREVIEW_SAMPLES` samples; one
+        coarser while previews there take longer than
+        :data:`PREVIEW_BUDGET_S` (a loaded machine), back when they take a
+        fifth of it.
+        """
+        return self._base_level() + self._coarser
+
+    def _base_level(self):
         return max(1, math.ceil(math.log(self._samples() / PREVIEW_SAMPLES, 4)))
 
     def _preview(self, detector, slope, params):
@@ -368,18 +382,27 @@ class AliasingSession:
         from .. import refocus
         from ..pyramid import lightfield_pyramid
 
+        began = time.perf_counter()
         level = self.preview_level()
-        if self._coarse is None:
-            self._coarse = lightfield_pyramid(detector.lf, level)[level]
+        if self._pyramid is None:
+            self._pyramid = lightfield_pyramid(detector.lf, self._base_level() + 1)
         shape = detector.lf.image_shape
-        image = _enlarge(refocus(self._coarse, slope / 2**level), shape, level)
+        image = _enlarge(refocus(self._pyramid[level], slope / 2**level), shape, level)
         if params is None or not self._lock.acquire(blocking=False):
             return Preview(image, None, None, level)
         try:
             coarse = detector.detect(slope, level=level, **params.detect_kwargs())
         finally:
             self._lock.release()
+        self._adapt(time.perf_counter() - began, min(shape) >> (self._base_level() + 1))
         return Preview(image, _enlarge(coarse.cv, shape, level), _enlarge(coarse.mask, shape, level), level)
+
+    def _adapt(self, seconds, coarser_side):
+        """Go one level coarser while previews exceed their budget (and come back when they are quick)."""
+        if self._coarser == 0 and seconds > PREVIEW_BUDGET_S and coarser_side >= PREVIEW_MIN_SIDE:
+            self._coarser = 1
+        elif self._coarser == 1 and seconds < PREVIEW_BUDGET_S / 5:
+            self._coarser = 0
 
     def detect(self, slope, params):
         """Detect aliasing at ``slope`` (reusing the detector's shifted views).

@@ -76,12 +76,15 @@ class Preview:
         The exact Cv of the level and its mask (``None`` while the detector is busy).
     level : int
         The pyramid level (each of its pixels is a ``2**level`` square block).
+    shown : threading.Event
+        Set by the GUI once the preview is on screen.
     """
 
     image: np.ndarray
     cv: np.ndarray | None
     mask: np.ndarray | None
     level: int = 1
+    shown: threading.Event = field(default_factory=threading.Event, compare=False)
 
 
 def _enlarge(image, shape, level):
@@ -91,10 +94,17 @@ def _enlarge(image, shape, level):
     return np.ascontiguousarray(big[: shape[0], : shape[1]])
 
 
-def _pause(seconds, step):
-    """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile."""
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end:
+def _pause(seconds, step, until=None, longest_s=1.0):
+    """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile.
+
+    With ``until`` (a ``threading.Event``), go on pausing until it is set
+    too, for at most ``longest_s``.
+    """
+    began = time.perf_counter()
+    while True:
+        waited = time.perf_counter() - began
+        if waited >= longest_s or (waited >= seconds and (until is None or until.is_set())):
+            return
         time.sleep(0.005)
         yield step
 
@@ -328,8 +338,10 @@ class AliasingSession:
         - a :class:`Preview` first, for a light field large enough
           (:meth:`previews`): the refocus and Cv of a coarse pyramid level
           (:meth:`preview_level`), shown at full size;
-          the job then pauses :data:`PREVIEW_PAUSE_S` so that a newer focus
-          change stops it before the full-resolution work;
+          the job then pauses :data:`PREVIEW_PAUSE_S`, and until the GUI has
+          shown it (``Preview.shown``), so that a newer focus change stops it
+          before the full-resolution work, whose kernels would keep the GUI
+          thread from drawing;
         - the refocused image alone, when the detector is busy (a reduction
           runs): the refocus needs no lock, the Cv waits for the detector.
 
@@ -341,8 +353,10 @@ class AliasingSession:
         slope = float(slope)
         detector = yield from self._ready((0, 2))
         if self.previews():
-            yield Partial(self._preview(detector, slope, params if detect else None))
-            yield from _pause(PREVIEW_PAUSE_S, (1, 2))
+            preview = self._preview(detector, slope, params if detect else None)
+            yield Partial(preview)
+            # the full-resolution kernels hold the GIL: start them once the preview is on screen
+            yield from _pause(PREVIEW_PAUSE_S, (1, 2), until=preview.shown)
         image = refocus(detector.lf, slope)
         if not detect:
             return image, None

@@ -610,6 +610,7 @@ class AliasingWidget(QWidget):
                        contrast_limits=adaptive_limits(preview.cv, at_least=2 * params.threshold))
             self._show("mask", preview.mask.astype(np.uint8), meta)
         self._set_status(f"slope {slope:.2f}: preview at 1/{2**preview.level} of the resolution...")
+        QTimer.singleShot(0, preview.shown.set)  # after the canvas' repaint, which is already queued
 
     def _show_detection(self, detection, slope, with_cv=True):
         """Show the Cv map and the mask (only the mask when just T changed).

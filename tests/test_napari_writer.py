@@ -80,7 +80,8 @@ def test_saved_outputs_open_again_with_their_parameters(make_napari_viewer, qtbo
                     and layer.metadata["lfalias_params"]["slope"] == 4.0, timeout=20000)
     qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=20000)
     saved = {}
-    for role, file_type in (("cv", "light field or aliasing output"), ("mask", "aliasing mask or level map")):
+    for role, file_type in (("refocus", "light field or aliasing output"), ("cv", "light field or aliasing output"),
+                            ("mask", "aliasing mask or level map")):
         layer = find_output_layer(viewer, role)
         saved[role] = (np.array(layer.data), dict(layer.metadata["lfalias_params"]), layer._type_string)
         _save_with_the_dialog(viewer, monkeypatch, layer, tmp_path / f"{role}.tif", file_type)
@@ -91,13 +92,14 @@ def test_saved_outputs_open_again_with_their_parameters(make_napari_viewer, qtbo
         assert opened.metadata["lfalias"] == role and opened.metadata["lfalias_source"] == "room"
         assert opened.metadata["lfalias_params"] == params
         assert opened.metadata["lfalias_file"] == str(tmp_path / f"{role}.tif")
+        assert opened._type_string != "image" or opened.rgb == (values.ndim == 3)
     # the widget keeps updating its own layers, never the ones opened from files
     widget.focus_slider.setValue(-4.0)
     qtbot.waitUntil(lambda: find_output_layer(viewer, "cv").metadata["lfalias_params"]["slope"] == -4.0,
                     timeout=20000)
     qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=20000)
     reopened = [layer for layer in viewer.layers if layer.metadata.get("lfalias_file")]
-    assert len(reopened) == 2
+    assert len(reopened) == 3
     assert all(layer.metadata["lfalias_params"]["slope"] == 4.0 for layer in reopened)
     assert widget.shutdown()
 

@@ -58,17 +58,24 @@ def _scenes(size):
 
 
 def _interleaved(calls, repeats):
-    """Median seconds of each call, the calls taking turns, in reversed order every other round (one warm-up each)."""
+    """Median wall and CPU seconds of each call, the calls taking turns (one warm-up each).
+
+    The order is reversed every other round. CPU time (this process, all
+    threads) counts the work done, whatever else runs on the machine.
+    """
     for call in calls.values():
         call()
-    times = {name: [] for name in calls}
+    wall = {name: [] for name in calls}
+    cpu = {name: [] for name in calls}
     order = list(calls.items())
     for round_ in range(repeats):
         for name, call in (order if round_ % 2 == 0 else order[::-1]):
-            begin = time.perf_counter()
+            begin, begin_cpu = time.perf_counter(), time.process_time()
             call()
-            times[name].append(time.perf_counter() - begin)
-    return {name: float(np.median(values)) for name, values in times.items()}
+            wall[name].append(time.perf_counter() - begin)
+            cpu[name].append(time.process_time() - begin_cpu)
+    return ({name: float(np.median(values)) for name, values in wall.items()},
+            {name: float(np.median(values)) for name, values in cpu.items()})
 
 
 def _warm(lf, skip, slopes):
@@ -89,7 +96,7 @@ def _warm(lf, skip, slopes):
 def run(size, repeats, slopes):
     import napari_lfalias as lfa
 
-    rows, worst = [], 0.0
+    rows, worst = [], {"wall": 0.0, "cpu": 0.0}
     for name, lf in _scenes(size).items():
         floor = float(np.median(memory_floor(lf.data, repeats)))
         for slope in slopes:
@@ -100,15 +107,16 @@ def run(size, repeats, slopes):
                 "warm, skip": _warm(lf, True, [slope]),
                 "warm, no skip": _warm(lf, False, [slope]),
             }
-            t = _interleaved(calls, repeats)
+            wall, cpu = _interleaved(calls, repeats)
             for kind in ("one-shot", "warm"):
-                ratio = t[f"{kind}, skip"] / t[f"{kind}, no skip"]
+                ratios = {"wall": wall[f"{kind}, skip"] / wall[f"{kind}, no skip"],
+                          "cpu": cpu[f"{kind}, skip"] / cpu[f"{kind}, no skip"]}
                 if evaluated > 0.99:
-                    worst = max(worst, ratio - 1)
+                    worst = {key: max(worst[key], ratios[key] - 1) for key in worst}
                 rows.append([name, f"{slope:g}", kind, f"{evaluated:.0%}",
-                             f"{t[f'{kind}, skip'] * 1e3:.1f} ({t[f'{kind}, skip'] / floor:.1f}x)",
-                             f"{t[f'{kind}, no skip'] * 1e3:.1f} ({t[f'{kind}, no skip'] / floor:.1f}x)",
-                             f"{ratio:.2f}"])
+                             f"{wall[f'{kind}, skip'] * 1e3:.1f} ({wall[f'{kind}, skip'] / floor:.1f}x)",
+                             f"{wall[f'{kind}, no skip'] * 1e3:.1f} ({wall[f'{kind}, no skip'] / floor:.1f}x)",
+                             f"{ratios['wall']:.2f}", f"{ratios['cpu']:.2f}"])
     return rows, worst
 
 
@@ -121,10 +129,14 @@ def main(argv=None):
     args = parser.parse_args(argv)
     rows, worst = run(args.size, args.repeats, args.slopes)
     header = ["light field", "slope", "call", "pixels evaluated with skip",
-              "skip_flat=True ms (x floor)", "skip_flat=False ms (x floor)", "ratio"]
-    verdict = (f"Largest overhead where nothing was skipped: {worst:+.0%} "
-               f"(limit {MAX_OVERHEAD:.0%}): **{'met' if worst <= MAX_OVERHEAD else 'NOT met'}**.")
-    notes = ("Medians; the settings take turns run by run (in reversed order every other round). The floor is one plain sum over the light "
+              "skip_flat=True ms (x floor)", "skip_flat=False ms (x floor)", "ratio (wall)", "ratio (CPU)"]
+    verdict = (f"Largest overhead where nothing was skipped: {worst['cpu']:+.0%} in CPU time, "
+               f"{worst['wall']:+.0%} in wall-clock time (limit {MAX_OVERHEAD:.0%}): "
+               f"**{'met' if worst['cpu'] <= MAX_OVERHEAD else 'NOT met'}** (the CPU time counts the work; "
+               "the wall-clock time also counts the other jobs on the machine).")
+    notes = ("Medians; the settings take turns run by run (in reversed order every other round); the ratios "
+             "are skip_flat=True over skip_flat=False, in wall-clock and in CPU time (this process, all "
+             "threads). The floor is one plain sum over the light "
              "field (`data.sum(axis=(0, 1))`), timed in the same run. T = 0.02, exact method.")
     path = write_report(args.out, "Skipping flat tiles: cost where nothing is skippable, saving where much is",
                         [notes, table(header, rows), verdict])

@@ -396,10 +396,10 @@ class AliasingSession:
         from .. import refocus
         from ..pyramid import lightfield_pyramid
 
-        began = time.perf_counter()
         level = self.preview_level()
         if self._pyramid is None:
             self._pyramid = lightfield_pyramid(detector.lf, self._base_level() + 1)
+        began = time.perf_counter()  # (made once: the pyramid is not what a preview costs)
         shape = detector.lf.image_shape
         image = _enlarge(refocus(self._pyramid[level], slope / 2**level), shape, level)
         if params is None or not self._lock.acquire(blocking=False):

@@ -92,6 +92,7 @@ class _Clock:
     def __init__(self, viewer, widget):
         self.updated = {}
         self.drawn = []
+        self.levels = []  # the pyramid level of each preview shown
         widget.outputs_updated.connect(self._on_output)
         viewer.window._qt_viewer.canvas._scene_canvas.events.draw.connect(
             lambda event: self.drawn.append(time.perf_counter()))
@@ -99,6 +100,8 @@ class _Clock:
     def _on_output(self, role, params):
         key = (role, params.get("slope"), bool(params.get("preview")))
         self.updated.setdefault(key, time.perf_counter())
+        if role == "refocus" and params.get("preview"):
+            self.levels.append(int(params["preview"]))
 
     def all_updated(self, slope, preview):
         times = [self.updated.get((role, slope, preview)) for role in ROLES]
@@ -140,7 +143,7 @@ def _time_widget(lf, slopes, pause):
     opened = time.perf_counter() - start
     _warmup.wait(300)
     rows = {"first": [], "first drawn": [], "full": [], "full drawn": [], "cpu": []}
-    level = widget.session.preview_level() if widget.session.previews() else 0
+    clock.levels.clear()
     for slope in slopes:
         begin, begin_cpu = time.perf_counter(), time.process_time()
         widget.focus_slider.setValue(slope)
@@ -158,10 +161,11 @@ def _time_widget(lf, slopes, pause):
         _wait(lambda: time.perf_counter() > rest)
     widget.shutdown()
     viewer.close()
-    return {"rows": rows, "opened": opened, "level": level}
+    levels = {level: clock.levels.count(level) for level in sorted(set(clock.levels))}
+    return {"rows": rows, "opened": opened, "levels": levels}
 
 
-def _core_baseline(lf, slopes, level):
+def _core_baseline(lf, slopes, levels):
     """Seconds per slope of the core calls the widget's worker makes (outside the viewer)."""
     import napari_lfalias as lfa
     from napari_lfalias.detect import AliasingDetector
@@ -171,11 +175,11 @@ def _core_baseline(lf, slopes, level):
     detector.detect(slopes[0] + 0.5)
     runs = {"core `refocus` + warm `AliasingDetector.detect`, full resolution":
             lambda s: (lfa.refocus(lf, s), detector.detect(s))}
-    if level:
+    for level in levels:
         coarse = lightfield_pyramid(lf, level)[level]
         detector.detect(slopes[0] + 0.5, level=level)
         runs[f"core preview: `refocus` + `detect` of pyramid level {level}"] = (
-            lambda s: (lfa.refocus(coarse, s / 2**level), detector.detect(s, level=level)))
+            lambda s, coarse=coarse, level=level: (lfa.refocus(coarse, s / 2**level), detector.detect(s, level=level)))
     times = {}
     for label, call in runs.items():
         times[label] = []
@@ -196,15 +200,16 @@ def run_condition(lf, slopes, extra, pause, core_repeats):
     with _Load(extra):
         load_before = os.getloadavg()[0]
         widget = _time_widget(lf, slopes, pause)
-        core = _core_baseline(lf, slopes[:core_repeats], widget["level"])
+        core = _core_baseline(lf, slopes[:core_repeats], widget["levels"])
         load_after = os.getloadavg()[0]
     return {"extra": extra, "widget": widget, "core": core, "load": (load_before, load_after)}
 
 
 def _section(result, pause):
-    rows, level = result["widget"]["rows"], result["widget"]["level"]
+    rows, levels = result["widget"]["rows"], result["widget"]["levels"]
     first = float(np.median(rows["first drawn"])) * 1e3
-    what = f"preview (pyramid level {level}, 1/{2**level} of the resolution)" if level else "full result"
+    what = ("preview: " + ", ".join(f"{count} at pyramid level {level} (1/{2**level} of the resolution)"
+                                    for level, count in levels.items())) if levels else "full result"
     title = ("As the machine is" if result["extra"] == 0
              else f"Under load: {result['extra']} extra busy processes on the {os.cpu_count()} cores")
     lines = [

@@ -186,9 +186,11 @@ def test_previews_go_one_level_coarser_while_they_are_slow(monkeypatch):
     assert session.previews() and session.preview_level() == 2  # 9.4 M samples: 1.5 M at most
     params = DetectionParams()
     monkeypatch.setattr(_session, "PREVIEW_BUDGET_S", 0.0)  # every preview is too slow
-    _, steps = _run(session.focus(0.5, params))
-    (first,) = _partials(steps)
-    assert first.level == 2 and session.preview_level() == 3
+    levels = []
+    for slope in (0.25, 0.5, 0.625, 0.75):  # the first makes the level's caches; then two in a row
+        _, steps = _run(session.focus(slope, params))
+        levels.append(_partials(steps)[0].level)
+    assert levels == [2, 2, 2, 3] and session.preview_level() == 3
     _, steps = _run(session.focus(0.75, params))
     (second,) = _partials(steps)
     assert second.level == 3 and second.image.shape == (384, 384, 1)
@@ -200,5 +202,6 @@ def test_previews_go_one_level_coarser_while_they_are_slow(monkeypatch):
     np.testing.assert_array_equal(second.cv[::8, ::8],
                                   lfa.detect_aliasing(lf, 0.75, level=3, skip_flat=False).cv)
     monkeypatch.setattr(_session, "PREVIEW_BUDGET_S", 1e6)  # quick again: back to the finer level
-    _run(session.focus(1.0, params))
+    for slope in (1.0, 1.25):
+        _run(session.focus(slope, params))
     assert session.preview_level() == 2

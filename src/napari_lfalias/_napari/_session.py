@@ -242,6 +242,8 @@ class AliasingSession:
         self._last = None  # (detection key, Detection)
         self._pyramid = None  # the light field's pyramid down to the coarsest preview level
         self._coarser = 0  # 1 while previews on the base level take longer than their budget
+        self._previews = 0  # previews made at the current level
+        self._streak = 0  # previews in a row that ask for the other level
 
     @property
     def source_lf(self):
@@ -382,9 +384,9 @@ class AliasingSession:
         """The pyramid level previews are computed on.
 
         The first level with at most :data:`PREVIEW_SAMPLES` samples; one
-        coarser while previews there take longer than
-        :data:`PREVIEW_BUDGET_S` (a loaded machine), back when they take a
-        fifth of it.
+        coarser once two previews in a row there took longer than
+        :data:`PREVIEW_BUDGET_S` (a loaded machine), back once two took less
+        than a fifth of it.
         """
         return self._base_level() + self._coarser
 
@@ -412,11 +414,20 @@ class AliasingSession:
         return Preview(image, _enlarge(coarse.cv, shape, level), _enlarge(coarse.mask, shape, level), level)
 
     def _adapt(self, seconds, coarser_side):
-        """Go one level coarser while previews exceed their budget (and come back when they are quick)."""
-        if self._coarser == 0 and seconds > PREVIEW_BUDGET_S and coarser_side >= PREVIEW_MIN_SIDE:
-            self._coarser = 1
-        elif self._coarser == 1 and seconds < PREVIEW_BUDGET_S / 5:
-            self._coarser = 0
+        """Go one level coarser after two previews over their budget in a row; back after two quick ones.
+
+        The first preview of a level is not counted: it makes that level's caches.
+        """
+        self._previews += 1
+        if self._previews == 1:
+            return
+        if self._coarser == 0:
+            slow = seconds > PREVIEW_BUDGET_S and coarser_side >= PREVIEW_MIN_SIDE
+        else:
+            slow = seconds < PREVIEW_BUDGET_S / 5  # "slow" to change back: quick at the coarser level
+        self._streak = self._streak + 1 if slow else 0
+        if self._streak >= 2:
+            self._coarser, self._streak, self._previews = 1 - self._coarser, 0, 0
 
     def detect(self, slope, params):
         """Detect aliasing at ``slope`` (reusing the detector's shifted views).

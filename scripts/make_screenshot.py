@@ -2,14 +2,16 @@
 
 Opens the synthetic brick room (the paper's Figure 6) in a napari viewer,
 docks the aliasing widget, focuses on the front of the cube (as in
-Figure 6 b2) and waits for the refocused image, the exact Cv map and the
-aliasing mask of the brick wall behind it (T = 0.01); then runs the
-reduction (Algorithm 2) and saves the whole window with the four outputs
-in napari's grid mode: refocused | Cv, mask | fused result.
+Figure 6 b2) and waits for the refocused image and the aliasing mask of
+the brick wall behind it (T = 0.01); then runs the reduction (Algorithm 2)
+and saves the whole window in the widget's default layout: the refocused
+image with the aliased pixels as a translucent mask, the reduced image
+beside it, the level-map legend in the widget (the Cv layer stays hidden,
+as it opens).
 
 Run (from the repository root)::
 
-    xvfb-run -a .venv/bin/python scripts/make_screenshot.py [--overwrite]
+    xvfb-run -a -s "-screen 0 1600x1200x24" .venv/bin/python scripts/make_screenshot.py [--overwrite]
 """
 
 from __future__ import annotations
@@ -62,24 +64,17 @@ def make_screenshot(output=OUTPUT, size=384, overwrite=False):
             if "failed" in widget.status.text():
                 raise RuntimeError(widget.status.text())
             layer = find_output_layer(viewer, role)
-            return layer is not None and layer.metadata["lfalias_params"]["slope"] == widget.slope
+            if layer is None:
+                return False
+            params = layer.metadata["lfalias_params"]
+            return params["slope"] == widget.slope and not params.get("preview")
 
         return check
 
     run_event_loop_until(ready("mask"), timeout_s=120)
     widget.reduce()
     run_event_loop_until(ready("fused"), timeout_s=300)
-    # the four outputs in napari's grid mode (the level map stays hidden)
-    viewer.layers["brick room"].visible = False
-    find_output_layer(viewer, "level").visible = False
-    cv = find_output_layer(viewer, "cv")
-    cv.blending = "translucent"
-    order = [find_output_layer(viewer, role) for role in ("refocus", "cv", "mask", "fused")]
-    for index, layer in enumerate(reversed(order)):  # grid cells follow the layer list, top first
-        viewer.layers.move(viewer.layers.index(layer), len(viewer.layers) - 1 - index)
-    viewer.layers.selection.active = cv
-    viewer.grid.enabled = True
-    viewer.grid.shape = (2, 2)
+    viewer.layers.selection.active = find_output_layer(viewer, "refocus")
     viewer.reset_view()
     deadline = time.perf_counter() + 0.5  # let the canvas draw the new view
     run_event_loop_until(lambda: time.perf_counter() > deadline)

@@ -222,7 +222,7 @@ def test_rethreshold_equals_a_new_detection(room):
 
 
 def test_rethreshold_below_a_skipped_tile_asks_for_a_new_detection():
-    lf = textureless_plane(n_views=5, size=192, seed=0).lightfield
+    lf = textureless_plane(n_views=5, size=256, seed=0).lightfield
     det = detect_cv(lf, 0.0, threshold=0.02)
     assert not det.evaluated.all()
     with pytest.raises(ParameterError, match="threshold"):
@@ -236,7 +236,7 @@ def test_rethreshold_below_a_skipped_tile_asks_for_a_new_detection():
 
 @pytest.mark.parametrize("method", ["analytic", "monte_carlo"])
 def test_skipped_tiles_are_flat_and_change_no_decision(method):
-    lf = textureless_plane(n_views=5, size=192, seed=0, wall_disparity=0.0, object_disparity=2.0).lightfield
+    lf = textureless_plane(n_views=5, size=256, seed=0, wall_disparity=0.0, object_disparity=2.0).lightfield
     kwargs = dict(method=method, seed=0, n_patterns=20)
     skipped = detect_cv(lf, 2.0, **kwargs)
     full = detect_cv(lf, 2.0, skip_flat=False, **kwargs)
@@ -244,6 +244,30 @@ def test_skipped_tiles_are_flat_and_change_no_decision(method):
     np.testing.assert_array_equal(skipped.mask, full.mask)
     np.testing.assert_array_equal(skipped.cv[skipped.evaluated], full.cv[skipped.evaluated])
     assert full.cv[~skipped.evaluated].max() <= 0.02
+
+
+def test_flat_tiles_are_skipped_only_where_it_pays():
+    from napari_lfalias.detect import AliasingDetector
+
+    # a flat column and row of a small image: the runs left would cost more than one whole pass
+    lf = textureless_plane(n_views=5, size=192, seed=0).lightfield
+    detector = AliasingDetector(lf)
+    assert detector._provably_flat(0, 0.0, 0.02, "cv", "analytic", 0.2).any()
+    det = detector.detect(0.0, method="analytic")
+    assert det.evaluated.all()
+    np.testing.assert_array_equal(det.mask, detect_cv(lf, 0.0, skip_flat=False).mask)
+    # provably flat tiles between textured ones, one tile wide: computed rather than split around
+    rng = np.random.default_rng(1)
+    data = np.full((3, 3, 128, 512, 1), 0.5, np.float32)
+    for start in range(0, 512, 128):  # a textured tile column, then three flat ones
+        data[:, :, :, start:start + 32] += 0.4 * rng.random((3, 3, 128, 32, 1), dtype=np.float32)
+    striped = lfa.LightField(data)
+    detector = AliasingDetector(striped)
+    flat = detector._provably_flat(0, 0.0, 0.02, "cv", "analytic", 0.2)
+    assert flat[:, 2::4].all() and not flat[:, 0::4].any()  # between textured columns, provably flat
+    assert detector.detect(0.0, method="analytic").evaluated.all()
+    # Monte Carlo evaluates pixel by pixel: there every flat tile is skipped
+    assert not detect_cv(striped, 0.0, method="monte_carlo", n_patterns=4, seed=0).evaluated.all()
 
 
 def test_a_textured_scene_is_not_skipped(room):

@@ -89,7 +89,7 @@ def test_conversion_adds_the_decoded_lightfield(make_napari_viewer, qtbot, guv):
     lf = lightfield_of(layer)
     np.testing.assert_array_equal(lf.data, expected.data)
     np.testing.assert_array_equal(lf.weights, expected.weights)
-    assert layer.name == raw.stem and lf.shape == (15, 15, 28, 28, 1)
+    assert layer.name == f"{raw.stem} (napari_lf_guv)" and lf.shape == (15, 15, 28, 28, 1)
     assert lf.meta["microscope"]["na"] == 1.2  # the optics beside the capture came along
     assert widget.grid == expected.meta["grid"]  # kept: "Save grid" can write it
     assert widget.shutdown()
@@ -104,8 +104,21 @@ def test_converting_after_calibration_uses_the_grid_drawn(make_napari_viewer, qt
     drawn = widget.grid
     widget.convert()
     _finish(qtbot, widget)
-    lf = lightfield_of(next(layer for layer in viewer.layers if lightfield_of(layer) is not None))
+    layer = next(layer for layer in viewer.layers if lightfield_of(layer) is not None)
+    lf = lightfield_of(layer)
     assert lf.meta["grid"] is drawn
+    # the light field lies over the white image it was decoded from (one pixel per lens, in
+    # micrometres in the specimen), and the white image and grid no longer cover it
+    (white_layer,) = _role_layers(viewer, "white")
+    (grid_layer,) = _role_layers(viewer, "grid")
+    assert layer.visible and not white_layer.visible and not grid_layer.visible
+    um = lf.meta["microscope"]["pixel_size_um"] / lf.meta["microscope"]["magnification"]
+    assert tuple(white_layer.scale) == pytest.approx((um, um))
+    assert tuple(layer.scale[-2:]) == pytest.approx((drawn.row_step * um, drawn.pitch * um))
+    assert tuple(layer.translate[-2:]) == pytest.approx(tuple(drawn.centres[0] * um))
+    assert [str(unit) for unit in layer.units[-2:]] == ["micrometer", "micrometer"]
+    corner = np.array(layer.translate[-2:]) + (np.array(lf.image_shape) - 1) * np.array(layer.scale[-2:])
+    assert np.allclose(corner, drawn.centres[-1] * um, atol=drawn.pitch * um)  # the last lens, too
     # the saved grid opens the capture again without the white image's calibration step
     saved = widget.save_grid(tmp_path / "guv.grid.json")
     assert saved == tmp_path / "guv.grid.json"
@@ -114,6 +127,7 @@ def test_converting_after_calibration_uses_the_grid_drawn(make_napari_viewer, qt
     # an existing file is not replaced unless asked: the failure is shown, not raised
     assert widget.save_grid(saved) is None
     assert "saving the grid failed" in widget.status.text() and "guv.grid.json" in widget.status.text()
+    assert "--overwrite" not in widget.status.text() and "choose another name" in widget.status.text()
     assert widget.save_grid(saved, overwrite=True) == saved
     assert widget.shutdown()
 

@@ -3,7 +3,9 @@
 Run under ``xvfb-run``.
 """
 
+import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -123,10 +125,11 @@ def test_lenslet_capture_opens_with_a_grid_model_saved_beside_it(make_napari_vie
 
     source = lf_data / "napari_lf_guv"
     shutil.copy(source / GUV[0], tmp_path / "capture.tif")  # no white image beside it
-    assert _reader.get_lenslet_reader(str(tmp_path / "capture.tif")) is None
+    viewer = make_napari_viewer()
+    with pytest.raises(_reader.ReadError, match="needs a white image"):  # claimed, and says why
+        viewer.open(tmp_path / "capture.tif", plugin=PLUGIN)
     grid = calibrate(source / GUV[1], dark=source / GUV[2])
     write_json(tmp_path / "capture.grid.json", grid)
-    viewer = make_napari_viewer()
     layer, lf = _open_one(viewer, tmp_path / "capture.tif")
     expected = lfa.load(tmp_path / "capture.tif", grid=tmp_path / "capture.grid.json")
     np.testing.assert_array_equal(lf.data, expected.data)
@@ -140,10 +143,9 @@ def test_lenslet_capture_opens_with_its_white_image_given(make_napari_viewer, lf
     for path, name in zip(paths, GUV):
         path.parent.mkdir(exist_ok=True)
         shutil.copy(source / name, path)
-    assert _reader.get_lenslet_reader(str(paths[0])) is None  # nothing beside it
     viewer = make_napari_viewer()
     layers = viewer.open([str(p) for p in (paths[1], paths[0], paths[2])], stack=True, plugin=PLUGIN)
-    assert len(layers) == 1 and layers[0].name == "cells"
+    assert len(layers) == 1 and layers[0].name == "cells (a)"
     lf = lightfield_of(layers[0])
     expected = lfa.load(paths[0], white=paths[1], dark=paths[2])
     np.testing.assert_array_equal(lf.data, expected.data)
@@ -301,3 +303,114 @@ def test_saved_lightfield_opens_with_positions_and_meta(make_napari_viewer, tmp_
     # a plain TIFF beside it is not claimed by this reader
     iio.imwrite(tmp_path / "plain.tif", np.zeros((12, 10), np.uint16))
     assert _reader.get_saved_lightfield_reader(str(tmp_path / "plain.tif")) is None
+
+
+# -- readers say why ------------------------------------------------------------------------
+
+
+def _notifications_since(count):
+    from napari.utils.notifications import notification_manager
+
+    return [str(record.message) for record in notification_manager.records[count:]]
+
+
+def _choose_in_the_reader_dialog(monkeypatch, choice):
+    """Answer napari's "Choose reader" dialog with ``choice`` (a display name); record what it showed."""
+    from napari._qt.dialogs import qt_reader_dialog
+
+    shown = {}
+
+    def answer(dialog):
+        shown["readers"] = [button.text() for button in dialog.reader_btn_group.buttons()]
+        return choice, False
+
+    monkeypatch.setattr(qt_reader_dialog.QtReaderDialog, "get_user_choices", answer)
+    return shown
+
+
+def test_a_partial_camera_array_shows_the_librarys_reason(make_napari_viewer, lf_data, tmp_path, monkeypatch):
+    from napari.utils.notifications import notification_manager
+
+    from napari_lfalias._napari._controls import PLUGIN_MENU
+
+    folder = tmp_path / "antinous_partial"
+    folder.mkdir()
+    for index in range(81):
+        if index != 40:  # the centre view is missing
+            (folder / f"input_Cam{index:03d}.png").symlink_to(lf_data / "hci_antinous" / f"input_Cam{index:03d}.png")
+    assert _reader.get_camera_array_reader(str(folder)) is not None  # claimed: it looks like ours
+    viewer = make_napari_viewer()
+    shown = _choose_in_the_reader_dialog(monkeypatch, PLUGIN_MENU)
+    before = len(notification_manager.records)
+    # as File > Open Folder does: napari's own reader claims folders too, so it asks which to use
+    with pytest.raises(_reader.ReadError) as info:
+        viewer.window._qt_viewer._qt_open([str(folder)], stack=False)
+    assert PLUGIN_MENU in shown["readers"]  # the choice says what this reader opens
+    reason = "1 of 81 views of the 9x9 grid are missing: input_Cam040.png"
+    assert reason in str(info.value)
+    assert any(reason in message for message in _notifications_since(before))
+    assert "pass grid=" not in str(info.value)  # GUI words, not Python or CLI ones
+    assert len(viewer.layers) == 0
+
+
+def test_a_lenslet_capture_without_its_white_image_says_what_to_do(make_napari_viewer, lf_data, tmp_path):
+    from napari.utils.notifications import notification_manager
+
+    shutil.copy(lf_data / "napari_lf_guv" / GUV[0], tmp_path / GUV[0])  # no white image beside it
+    viewer = make_napari_viewer()
+    before = len(notification_manager.records)
+    with pytest.raises(_reader.ReadError) as info:
+        viewer.open(tmp_path / GUV[0], plugin=PLUGIN)
+    message = str(info.value)
+    assert GUV[0] in message and "needs a white image" in message
+    assert "File > Open Files as Stack" in message and "Lenslet conversion" in message
+    assert "--white" not in message and "white=..." not in message
+    assert any("needs a white image" in text for text in _notifications_since(before))
+
+
+def test_making_this_plugin_the_default_reader_as_the_guide_says(make_napari_viewer, tmp_path):
+    """docs/napari.md: ``extension2reader`` (Preferences > Plugins) picks this plugin without asking."""
+    from napari.settings import get_settings
+
+    from napari_lfalias.io_write import write_lightfield
+
+    lf = lfa.LightField(np.random.default_rng(1).random((2, 3, 8, 8, 1), dtype=np.float32))
+    path = write_lightfield(tmp_path / "views.tif", lf)
+    folder = _write_views(tmp_path / "array", _views(), lambda u, v, n: f"view_{u:02d}_{v:02d}.png")
+    viewer = make_napari_viewer()
+    settings = get_settings().plugins
+    kept = dict(settings.extension2reader)
+    try:
+        settings.extension2reader = {**kept, "*.tif": PLUGIN, f"{tmp_path}{os.sep}*{os.sep}": PLUGIN}
+        layers = viewer.open(path, plugin=None)  # as File > Open does: no plugin named
+        assert lightfield_of(layers[0]).grid_shape == (2, 3)
+        layers = viewer.open(folder, plugin=None)
+        assert lightfield_of(layers[0]).grid_shape == (3, 3)
+    finally:
+        settings.extension2reader = kept
+
+
+def test_two_captures_of_the_same_name_open_as_two_names(make_napari_viewer, lf_data, tmp_path):
+    source = lf_data / "napari_lf_guv"
+    for folder in ("day1", "day2"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(source / GUV[0], tmp_path / folder / "light_field.tif")
+        shutil.copy(source / GUV[1], tmp_path / folder / "light_field_white.tif")
+    viewer = make_napari_viewer()
+    names = [viewer.open(tmp_path / folder / "light_field.tif", plugin=PLUGIN)[0].name for folder in ("day1", "day2")]
+    assert names == ["light_field (day1)", "light_field (day2)"]
+
+
+def test_the_names_napari_shows_say_what_the_plugin_and_each_reader_do():
+    from npe2 import PluginManifest
+
+    import napari_lfalias
+    from napari_lfalias._napari._controls import PLUGIN_MENU
+
+    manifest = PluginManifest.from_file(Path(napari_lfalias.__file__).parent / "napari.yaml")
+    assert manifest.display_name == PLUGIN_MENU  # what the reader and writer choices list
+    titles = {command.id.split(".")[-1]: command.title for command in manifest.contributions.commands}
+    assert "folder of views" in titles["read_camera_array"] and "lenslet" in titles["read_lenslet"]
+    assert "Lytro" in titles["read_lytro"] and "saved" in titles["read_saved"]
+    assert {writer.display_name for writer in manifest.contributions.writers} == {
+        "light field or aliasing output", "aliasing mask or level map"}

@@ -176,3 +176,32 @@ def test_focus_range_from_metadata_or_the_data_geometry(room):
     assert focus_range(guv_like) == (-1.0, 1.0)  # the outermost view moves a quarter of 28 px
     with_map = lfa.LightField(lf.data, meta={"disparity": np.array([[-1.0, 0.5]])})
     assert focus_range(with_map) == pytest.approx((-1.15, 0.65))
+
+
+def test_previews_go_one_level_coarser_while_they_are_slow(monkeypatch):
+    from napari_lfalias._napari import _session
+
+    lf = _textured((8, 8, 384, 384, 1), seed=4)
+    session = AliasingSession(lf)
+    assert session.previews() and session.preview_level() == 2  # 9.4 M samples: 1.5 M at most
+    params = DetectionParams()
+    monkeypatch.setattr(_session, "PREVIEW_BUDGET_S", 0.0)  # every preview is too slow
+    levels = []
+    for slope in (0.25, 0.5, 0.625, 0.75):  # the first makes the level's caches; then two in a row
+        _, steps = _run(session.focus(slope, params))
+        levels.append(_partials(steps)[0].level)
+    assert levels == [2, 2, 2, 3] and session.preview_level() == 3
+    _, steps = _run(session.focus(0.75, params))
+    (second,) = _partials(steps)
+    assert second.level == 3 and second.image.shape == (384, 384, 1)
+    # the coarser preview is that level's exact refocus and Cv, each pixel a 8 x 8 block
+    from napari_lfalias.pyramid import lightfield_pyramid
+
+    level3 = lightfield_pyramid(lf, 3)[3]
+    np.testing.assert_array_equal(second.image[::8, ::8], lfa.refocus(level3, 0.75 / 8))
+    np.testing.assert_array_equal(second.cv[::8, ::8],
+                                  lfa.detect_aliasing(lf, 0.75, level=3, skip_flat=False).cv)
+    monkeypatch.setattr(_session, "PREVIEW_BUDGET_S", 1e6)  # quick again: back to the finer level
+    for slope in (1.0, 1.25):
+        _run(session.focus(slope, params))
+    assert session.preview_level() == 2

@@ -77,8 +77,14 @@ Before anything is shifted, the image is cut into tiles; a tile whose
 samples, over every view and over the footprint the shifts can reach, span
 ``[a, b]`` has ``s <= (b - a) / 2`` and ``mean >= a``, which bounds its Cv.
 A tile whose bound cannot exceed ``T`` is not computed (its ``cv`` reads 0
-and ``Detection.evaluated`` is False there). The per-tile ranges do not
-depend on the slope and are computed once per light field.
+and ``Detection.evaluated`` is False there) -- when skipping pays: the exact
+method then computes runs of tiles, which cost more per pixel than one
+pass over the image, so narrow gaps are computed and nothing is skipped
+unless the runs left are predicted to cost less (:data:`SKIP_WORTH`; where
+nothing can be skipped, skipping costs a few per cent, see
+``benchmarks/results/skip_flat.md``). The per-tile ranges do not depend on
+the slope and are made once per light field, in the same pass as the
+luminance.
 :class:`AliasingDetector` keeps them, the pyramid, the moments and the
 shifted stacks of the last slope: a new gamma, ``N`` or seed reuses the
 shifted views, and a new ``T`` only re-thresholds (:meth:`Detection.rethreshold`).
@@ -123,6 +129,13 @@ LUMINANCE_MODES = ("rec709", "max")
 DARK_FLOOR = 0.01
 #: Side of the tiles that are skipped when they cannot alias (pixels).
 TILE = 32
+#: Cost of the exact method's moments computed on runs of tiles, relative to one pass over the
+#: whole image: per pixel, and per row of each run (in pixels of the whole-image pass); measured
+#: in benchmarks/results/skip_flat.md. Skipping flat tiles must never cost more than it saves.
+TILED_PIXEL_COST = 1.2
+TILED_RUN_COST = 64.0
+#: Skip flat tiles only if the runs left are predicted to cost at most this share of the whole pass.
+SKIP_WORTH = 0.9
 
 
 # -- the statistics of random sampling patterns ------------------------------------
@@ -377,6 +390,21 @@ def _pattern_cv(values, weights, n_ch, index, gamma, n_patterns, seed, floor):
     return cv.max(axis=1).astype(np.float32), count
 
 
+def _narrow_gaps(computed, flat):
+    """Flat tiles in gaps narrower than a run's fixed cost between two computed tiles of a row.
+
+    Computing such a gap costs less than splitting the run around it.
+    """
+    narrow = max(1, int(TILED_RUN_COST // (TILED_PIXEL_COST * TILE)))
+    gaps = np.zeros_like(flat)
+    for ty in range(flat.shape[0]):
+        columns = np.flatnonzero(computed[ty])
+        for left, right in zip(columns[:-1], columns[1:]):
+            if 1 < right - left <= narrow + 1 and flat[ty, left + 1:right].all():
+                gaps[ty, left + 1:right] = True
+    return gaps
+
+
 # -- the detector ---------------------------------------------------------------------
 
 @dataclass
@@ -547,7 +575,36 @@ class AliasingDetector:
         padded[:height, :width] = region
         return padded.reshape(shape[0], self.tile, shape[1], self.tile).any(axis=(1, 3))
 
-    def _flat_tiles(self, level, slope, threshold, scale, method, gamma):
+    def _flat_tiles(self, level, slope, threshold, scale, method, gamma, candidates):
+        """Tiles to skip: their Cv provably stays at or below the threshold, and skipping them pays.
+
+        The exact method computes the tiles left as runs of whole tiles
+        along each tile row, which costs more per pixel than one pass over
+        the image, plus a fixed cost per run and row (:data:`TILED_PIXEL_COST`,
+        :data:`TILED_RUN_COST`): narrow gaps between computed tiles are
+        computed rather than skipped, and nothing is skipped unless the
+        runs left are predicted to cost at most :data:`SKIP_WORTH` of the
+        work without skipping. Monte Carlo evaluates pixel by pixel: every
+        provably flat tile is skipped.
+        """
+        flat = self._provably_flat(level, slope, threshold, scale, method, gamma)
+        if method != "analytic":
+            return flat
+        flat &= ~_narrow_gaps(candidates & ~flat, flat)
+        if self._tile_work(level, candidates & ~flat) > SKIP_WORTH * self._tile_work(level, candidates):
+            return np.zeros_like(flat)
+        return flat
+
+    def _tile_work(self, level, tiles):
+        """Predicted work of the moments on ``tiles``, in pixels of one pass over the whole image."""
+        height, width = self.level(level).image_shape
+        if tiles.all():
+            return float(height * width)
+        spans = self._spans(level, tiles)
+        rows, widths = spans[:, 1] - spans[:, 0], spans[:, 3] - spans[:, 2]
+        return float(np.sum(rows * (TILED_PIXEL_COST * widths + TILED_RUN_COST)))
+
+    def _provably_flat(self, level, slope, threshold, scale, method, gamma):
         """Tiles whose Cv provably stays at or below the threshold (decided before shifting)."""
         lf = self.level(level)
         low, high = self._tile_ranges(level)
@@ -711,7 +768,7 @@ class AliasingDetector:
         factors = variance_factors(lf.n_views, gamma)
         tiles = self._candidate_tiles(level, region)
         if self.skip_flat:
-            tiles &= ~self._flat_tiles(level, level_slope, threshold, threshold_scale, method, gamma)
+            tiles &= ~self._flat_tiles(level, level_slope, threshold, threshold_scale, method, gamma, tiles)
         pixels = self._tile_pixels(level, tiles)
         if region is not None:
             pixels &= region

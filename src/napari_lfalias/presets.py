@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from . import _validate
 
-__all__ = ["PRESETS", "METHOD_THRESHOLDS", "resolve", "detection_options"]
+__all__ = ["PRESETS", "METHOD_THRESHOLDS", "INTERACTIVE_METHOD", "resolve", "detection_options"]
 
 #: The parameters each preset sets (the rest keep their function defaults).
 PRESETS = {
@@ -32,6 +32,9 @@ PRESETS = {
 
 #: Default threshold of each detection method when no preset sets one (measured, see the module notes).
 METHOD_THRESHOLDS = {"depth": 0.02, "analytic": 0.02, "monte_carlo": 0.02}
+#: The method of per-slope work that must be quick (sweeps over many slopes, a live focus slider):
+#: the exact Cv, one pass over the views per slope (the default method renders a dense aperture).
+INTERACTIVE_METHOD = "analytic"
 #: Detection methods (see :mod:`napari_lfalias.detect`).
 METHODS = ("depth", "analytic", "monte_carlo")
 #: Scales a threshold may be stated on (see :mod:`napari_lfalias.detect`).

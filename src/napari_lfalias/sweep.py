@@ -15,6 +15,7 @@ import numpy as np
 
 from . import _budget, _validate
 from .errors import ParameterError
+from .presets import INTERACTIVE_METHOD
 from .lightfield import LightField
 
 __all__ = ["refocus_sweep", "disparity_range", "estimate_slope_range", "aliasing_by_slope", "SWEEP_KINDS"]
@@ -23,9 +24,8 @@ __all__ = ["refocus_sweep", "disparity_range", "estimate_slope_range", "aliasing
 SLOPE_PAD = 0.5
 #: What a sweep can hold per slope.
 SWEEP_KINDS = ("refocus", "cv", "mask")
-#: The detection method of sweeps unless one is given: the exact Cv, one pass over the views per slope
-#: (the disparity-guided default renders a dense aperture per slope).
-SWEEP_METHOD = "analytic"
+#: The detection method of sweeps unless one is given (:data:`~napari_lfalias.presets.INTERACTIVE_METHOD`).
+SWEEP_METHOD = INTERACTIVE_METHOD
 
 
 def _slope_plane(lf, slope, what, detect_kw):

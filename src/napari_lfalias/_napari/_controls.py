@@ -5,9 +5,53 @@ from __future__ import annotations
 import math
 
 from qtpy.QtCore import Qt, Signal
-from qtpy.QtWidgets import QHBoxLayout, QLabel, QSlider, QWidget
+from qtpy.QtWidgets import QDoubleSpinBox, QHBoxLayout, QSlider, QWidget
 
-__all__ = ["LogSlider", "report_failure"]
+__all__ = ["LogSlider", "report_failure", "in_gui_words", "PLUGIN_MENU"]
+
+
+#: The plugin's name in napari's menus (``display_name`` of ``napari.yaml``).
+PLUGIN_MENU = "Light fields (4-D): view folders, lenslet and Lytro captures"
+
+#: Library and command-line wording -> what a napari user does instead (regular expressions).
+_GUI_WORDS = (
+    (r"pass --overwrite \(overwrite=True\) to replace it|pass --overwrite to replace it",
+     "choose another name, or agree to replace it when the save dialog asks"),
+    (r"pass white=\.\.\. \(lfalias: --white\), or grid=\.\.\. from an earlier calibration",
+     "open it together with its white image (select both and use File > Open Files as Stack...), "
+     f"or calibrate and convert it in Plugins > {PLUGIN_MENU} > Lenslet conversion"),
+    (r"\(or pass grid=\(U, V\) for a smaller grid\)", "(or open a folder that holds a full grid of views)"),
+    (r"--white, --dark and --grid do not apply", "a white image, dark frame or grid does not apply"),
+    (r" ?\(lfalias: --[a-z-]+\)", ""),
+)
+#: The library's parameter names -> the controls that set them.
+_CONTROL_NAMES = {
+    "gamma": "relaxation \u03b3",
+    "n_patterns": "patterns N",
+    "threshold": "threshold T",
+    "max_level": "coarsest level",
+    "keep_in_focus": "keep in-focus layer",
+    "slope": "focus",
+}
+
+
+def in_gui_words(text):
+    """``text`` (a library message) with command-line flags and Python parameters in GUI words.
+
+    Examples
+    --------
+    >>> in_gui_words("max_level: the light field is too small for 9 levels")
+    'coarsest level: the light field is too small for 9 levels'
+    >>> in_gui_words("out.tif: output exists; pass --overwrite (overwrite=True) to replace it")
+    'out.tif: output exists; choose another name, or agree to replace it when the save dialog asks'
+    """
+    import re
+
+    for pattern, replacement in _GUI_WORDS:
+        text = re.sub(pattern, replacement, text)
+    for name, control in _CONTROL_NAMES.items():
+        text = re.sub(rf"\b{name}\b(?!=)", control, text)
+    return text
 
 
 def report_failure(status, what, error):
@@ -20,7 +64,8 @@ def report_failure(status, what, error):
     what : str
         What failed ("reduce", "calibrate", "saving the grid", ...).
     error : Exception
-        The error; its message (which names the file or parameter) is shown.
+        The error; its message (which names the file or parameter) is shown
+        in GUI words (:func:`in_gui_words`).
 
     Returns
     -------
@@ -29,14 +74,14 @@ def report_failure(status, what, error):
     """
     from napari.utils.notifications import show_error
 
-    message = f"{what} failed: {error}"
+    message = f"{what} failed: {in_gui_words(str(error))}"
     status.setText(message)
     show_error(message)
     return message
 
 
 class LogSlider(QWidget):
-    """A horizontal slider over a logarithmic range, with its value shown beside it.
+    """A horizontal slider over a logarithmic range, with a box beside it to type the value.
 
     Parameters
     ----------
@@ -46,27 +91,39 @@ class LogSlider(QWidget):
         The initial value.
     steps : int
         Number of slider steps between ``low`` and ``high``.
+    decimals : int
+        Decimals the box shows and accepts.
     parent : QWidget, optional
     """
 
-    #: Emitted with the new value (float) when the slider moves.
+    #: Emitted with the new value (float) when the slider moves or a typed value is entered.
     valueChanged = Signal(float)
 
-    def __init__(self, low, high, value, steps=400, parent=None):
+    def __init__(self, low, high, value, steps=400, decimals=5, parent=None):
         super().__init__(parent)
         self._log_low = math.log10(low)
         self._log_high = math.log10(high)
         self._steps = steps
         self.slider = QSlider(Qt.Orientation.Horizontal)
         self.slider.setRange(0, steps)
-        self.label = QLabel()
-        self.label.setMinimumWidth(56)
+        self.spin = QDoubleSpinBox()
+        self.spin.setDecimals(decimals)
+        self.spin.setRange(low, high)
+        self.spin.setKeyboardTracking(False)  # a typed value counts once it is entered, not per keystroke
+        self.spin.setMinimumWidth(80)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.slider)
-        layout.addWidget(self.label)
+        layout.addWidget(self.spin)
         self.slider.valueChanged.connect(self._on_slider)
+        self.spin.valueChanged.connect(self._on_typed)
         self.setValue(value)
+
+    def setToolTip(self, text):
+        """Show ``text`` over the slider and the box."""
+        super().setToolTip(text)
+        self.slider.setToolTip(text)
+        self.spin.setToolTip(text)
 
     def _to_value(self, position):
         fraction = position / self._steps
@@ -77,7 +134,7 @@ class LogSlider(QWidget):
         return int(round(min(max(fraction, 0.0), 1.0) * self._steps))
 
     def value(self):
-        """The value: as set by :meth:`setValue`, or at the step the user moved to."""
+        """The value: as set by :meth:`setValue` or typed, or at the step the user moved to."""
         return self._value
 
     def setValue(self, value):
@@ -85,17 +142,21 @@ class LogSlider(QWidget):
         value = float(value)
         changed = value != getattr(self, "_value", None)
         self._value = value
-        self.slider.blockSignals(True)
-        self.slider.setValue(self._to_position(value))
-        self.slider.blockSignals(False)
         self._show()
         if changed:
             self.valueChanged.emit(value)
 
     def _show(self):
-        self.label.setText(f"{self._value:.4g}")
+        for widget, shown in ((self.slider, self._to_position(self._value)), (self.spin, self._value)):
+            widget.blockSignals(True)
+            widget.setValue(shown)
+            widget.blockSignals(False)
 
     def _on_slider(self, position):
         self._value = float(f"{self._to_value(position):.3g}")
         self._show()
         self.valueChanged.emit(self._value)
+
+    def _on_typed(self, value):
+        if value != self._value:
+            self.setValue(value)

@@ -31,7 +31,7 @@ from qtpy.QtWidgets import (
 from ._controls import report_failure
 from ._jobs import JobRunner
 from ._layers import ROLE_KEY, lightfield_layer_data
-from ._reader import find_calibration_frames
+from ._reader import capture_name, find_calibration_frames
 
 __all__ = ["LensletConversionWidget", "FileField"]
 
@@ -78,6 +78,14 @@ def _read_image(path):
     return image if image.ndim == 2 else image.mean(axis=-1)
 
 
+def _sensor_placement(image_path):
+    """``scale`` and ``units`` of a sensor image: micrometres in the specimen when the optics are known."""
+    from ._optics import read_microscope_optics, sensor_calibration
+
+    where = sensor_calibration(read_microscope_optics(Path(image_path).parent))
+    return {"scale": where.scale, "units": (where.unit, where.unit)}
+
+
 class LensletConversionWidget(QWidget):
     """Calibrate a lenslet capture on its white image and decode it to a light field.
 
@@ -106,7 +114,7 @@ class LensletConversionWidget(QWidget):
         self.save_button.setEnabled(False)
         self.status = QLabel("")
         self.status.setWordWrap(True)
-        self.jobs = JobRunner(on_error=self._on_error, on_idle=self._on_idle)
+        self.jobs = JobRunner(on_error=self._on_error, on_idle=self._on_idle, owner=self)
         self.grid = None
         self._grid_inputs = None  # (white, dark, kind) the grid was fitted with
 
@@ -198,13 +206,14 @@ class LensletConversionWidget(QWidget):
         self.save_button.setEnabled(True)
 
     def _show_grid(self, image, grid, white):
-        """The white image and one circle per fitted microlens over it."""
+        """The white image and one circle per fitted microlens over it (in micrometres when the optics are known)."""
+        where = _sensor_placement(white)
         self._replace_layer("white", lambda: self.viewer.add_image(
-            image, name=f"white [{white.name}]", colormap="gray", metadata={ROLE_KEY: "white"}))
+            image, name=f"white [{white.name}]", colormap="gray", metadata={ROLE_KEY: "white"}, **where))
         self._replace_layer("grid", lambda: self.viewer.add_points(
             grid.centres, name=f"microlens grid [{white.name}]", size=grid.pitch,
             face_color="transparent", border_color="red", border_width=0.06,
-            metadata={ROLE_KEY: "grid", "grid": grid}))
+            metadata={ROLE_KEY: "grid", "grid": grid}, **where))
         self.status.setText(f"{white.name}: {grid.describe()}; RMS residual "
                             f"{grid.fit.get('rms_residual_px', float('nan')):.3g} px")
 
@@ -278,14 +287,23 @@ class LensletConversionWidget(QWidget):
         def done(lf):
             if grid is None:
                 self._keep_grid(lf.meta["grid"], (white, dark, kind))
-            data, kwargs, _ = lightfield_layer_data(lf, raw.stem)
+            data, kwargs, _ = lightfield_layer_data(lf, capture_name(raw))
             self.viewer.add_image(data, **kwargs)
+            self._frame_lightfield()
             rows, cols = lf.grid_shape
             self.status.setText(
                 f"{raw.name}: {rows}x{cols} views of {lf.image_shape[0]}x{lf.image_shape[1]}"
             )
 
         return job(), done
+
+    def _frame_lightfield(self):
+        """Show the new light field alone: the white image and the grid drawn over it are hidden
+        (the light field lies over them, one pixel per lens), and the view fits it."""
+        for layer in self.viewer.layers:
+            if (layer.metadata or {}).get(ROLE_KEY) in ("white", "grid"):
+                layer.visible = False
+        self.viewer.reset_view()
 
     # -- state ------------------------------------------------------------------------
     def _set_busy(self, busy):

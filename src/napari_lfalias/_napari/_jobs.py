@@ -15,6 +15,15 @@ never pile up. Each request is stamped with a generation number; a result
 whose generation is no longer current is dropped. Errors are always
 reported, stale or not.
 
+A stopped job is closed in its own worker thread as soon as it stops
+(:class:`_ClosingWorker`): its ``finally`` blocks run then (a lock it
+holds is released), not whenever the garbage collector gets to it.
+superqt's ``GeneratorWorker.quit()`` alone only stops iterating.
+
+The runner may belong to a widget (``owner``): once the widget is deleted
+(its viewer closed), running jobs are asked to stop and nothing is
+delivered to it any more, so no callback touches a deleted Qt object.
+
 napari and Qt are imported when a job starts, so :class:`Partial` can be
 used by code that runs without them (the session).
 """
@@ -70,6 +79,37 @@ def _guarded(generator):
         return _FAILED
 
 
+def _closing_worker(job):
+    """A superqt ``GeneratorWorker`` running ``job`` that closes it when it stops, in its thread.
+
+    superqt's worker leaves its loop on ``quit()`` (or when a signal can
+    no longer be emitted) without closing the generator, so the job's
+    ``finally`` blocks would wait for the garbage collector. This one closes
+    the job on every way out: finished, stopped or failed.
+    """
+    from superqt.utils import GeneratorWorker
+
+    class _ClosingWorker(GeneratorWorker):
+        def work(self):
+            try:
+                return super().work()
+            finally:
+                job.close()  # the job is suspended at a yield (or done): safe to close here
+
+    return _ClosingWorker(_guarded, job)
+
+
+def _alive(owner):
+    """False once the Qt object ``owner`` has been deleted (``None``: no owner, always alive)."""
+    if owner is None:
+        return True
+    try:
+        owner.objectName()
+    except RuntimeError:  # "wrapped C/C++ object ... has been deleted"
+        return False
+    return True
+
+
 class JobRunner:
     """Runs generator jobs in worker threads, one per slot.
 
@@ -82,15 +122,27 @@ class JobRunner:
         default: a napari error notification.
     on_idle : callable, optional
         ``on_idle()`` when the last running job has finished.
+    owner : QObject, optional
+        The widget the callbacks belong to. When it is deleted (its viewer
+        closed), running jobs are stopped and no callback is made any more.
     """
 
-    def __init__(self, on_progress=None, on_error=None, on_idle=None):
+    def __init__(self, on_progress=None, on_error=None, on_idle=None, owner=None):
         self.generation = 0
         self._workers = {}
         self._pending = {}
         self._on_progress = on_progress
         self._on_error = on_error or _notify_error
         self._on_idle = on_idle
+        self._owner = owner
+        if owner is not None:
+            workers = self._workers  # not self: the slot runs while the owner is being deleted
+
+            def stop_all(*_):
+                for worker in list(workers.values()):
+                    worker.quit()
+
+            owner.destroyed.connect(stop_all)
 
     # -- state ---------------------------------------------------------------
     def bump(self):
@@ -133,6 +185,20 @@ class JobRunner:
             return
         self._start(slot, make_job)
 
+    def stop(self, slot):
+        """Stop the job of ``slot`` (if any) and drop a request waiting for it.
+
+        Returns
+        -------
+        bool
+            True if a job was running there.
+        """
+        self._pending.pop(slot, None)
+        worker = self._workers.get(slot)
+        if worker is not None:
+            worker.quit()
+        return worker is not None
+
     def cancel(self):
         """Stop every job, drop waiting requests, and make results in flight stale."""
         self._pending.clear()
@@ -159,8 +225,6 @@ class JobRunner:
 
     # -- internals --------------------------------------------------------------
     def _start(self, slot, make_job):
-        from napari.qt.threading import GeneratorWorker, create_worker
-
         made = make_job()
         if made is None:
             self._finish(slot, None)
@@ -168,22 +232,19 @@ class JobRunner:
         generator, on_result = made[:2]
         on_partial = made[2] if len(made) > 2 else None
         generation = self.generation
-        worker = create_worker(
-            lambda: (yield from _guarded(generator)),
-            _start_thread=False,
-            _worker_class=GeneratorWorker,
-            _ignore_errors=True,
-        )
+        worker = _closing_worker(generator)
         self._workers[slot] = worker
 
         def current():
-            return generation == self.generation and slot not in self._pending
+            return generation == self.generation and slot not in self._pending and _alive(self._owner)
 
         def returned(result):
             if result is not _FAILED and current():
                 on_result(result)
 
         def yielded(step):
+            if not _alive(self._owner):
+                return
             if isinstance(step, _Failed):
                 # reported even for a superseded job: an error is never dropped
                 self._on_error(slot, step.error)
@@ -197,7 +258,8 @@ class JobRunner:
                 self._on_progress(slot, *step)
 
         def errored(error):  # not expected (jobs are guarded), but never dropped
-            self._on_error(slot, error)
+            if _alive(self._owner):
+                self._on_error(slot, error)
 
         def finished():
             self._finish(slot, worker)
@@ -212,6 +274,9 @@ class JobRunner:
     def _finish(self, slot, worker):
         if worker is not None and self._workers.get(slot) is worker:
             del self._workers[slot]
+        if not _alive(self._owner):
+            self._pending.clear()
+            return
         waiting = self._pending.pop(slot, None)
         if waiting is not None:
             self._start(slot, waiting)

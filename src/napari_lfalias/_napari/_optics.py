@@ -14,9 +14,17 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["MICROSCOPE_KEY", "read_microscope_optics", "attach_optics"]
+__all__ = [
+    "MICROSCOPE_KEY",
+    "read_microscope_optics",
+    "attach_optics",
+    "Calibration",
+    "spatial_calibration",
+    "sensor_calibration",
+]
 
 #: ``lf.meta`` key of the microscope optics.
 MICROSCOPE_KEY = "microscope"
@@ -132,3 +140,88 @@ def attach_optics(lf, capture):
     if optics is not None:
         lf.meta[MICROSCOPE_KEY] = optics
     return lf
+
+
+# -- where the pixels lie ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Where an image's pixels lie: napari's ``scale``, ``translate`` and ``units`` of its (y, x) axes.
+
+    Attributes
+    ----------
+    scale : tuple of float
+        Size of a pixel along y and x.
+    translate : tuple of float
+        Position of pixel (0, 0)'s centre.
+    unit : str
+        ``"um"`` (micrometres in the specimen) or ``"pixel"`` (sensor pixels).
+    """
+
+    scale: tuple = (1.0, 1.0)
+    translate: tuple = (0.0, 0.0)
+    unit: str = "pixel"
+
+    @property
+    def physical(self):
+        """True when the unit is a length, not a pixel count."""
+        return self.unit != "pixel"
+
+
+def _specimen_um_per_sensor_px(optics):
+    return optics["pixel_size_um"] / optics["magnification"]
+
+
+def sensor_calibration(optics):
+    """Calibration of a raw sensor image (a white image): micrometres in the specimen, or pixels.
+
+    Parameters
+    ----------
+    optics : dict or None
+        Microscope optics (:func:`read_microscope_optics`).
+
+    Returns
+    -------
+    Calibration
+    """
+    if not isinstance(optics, dict):
+        return Calibration()
+    step = _specimen_um_per_sensor_px(optics)
+    return Calibration((step, step), (0.0, 0.0), "um")
+
+
+def spatial_calibration(lf):
+    """Where the decoded pixels of ``lf`` lie, as far as its metadata tell.
+
+    A lenslet decode has one pixel per microlens: its pixels are one lens
+    pitch apart (a row step along y), and pixel (0, 0) is lens (0, 0), so
+    the light field lies exactly over the sensor image it was decoded from.
+    With microscope optics the unit is micrometres in the specimen (the
+    sensor pixel size over the magnification), else sensor pixels. Other
+    light fields: one unit per pixel, at the origin.
+
+    Returns
+    -------
+    Calibration
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias import LightField
+    >>> spatial_calibration(LightField(np.zeros((2, 2, 4, 4, 1), np.float32)))
+    Calibration(scale=(1.0, 1.0), translate=(0.0, 0.0), unit='pixel')
+    """
+    grid = lf.meta.get("grid")
+    pitch = getattr(grid, "pitch", None)
+    if not pitch:
+        return Calibration()
+    step_y, step_x = float(grid.row_step), float(pitch)
+    if getattr(grid, "transposed", False):
+        step_y, step_x = step_x, step_y
+    origin = tuple(float(v) for v in grid.centres[0])
+    optics = lf.meta.get(MICROSCOPE_KEY)
+    if isinstance(optics, dict):
+        um = _specimen_um_per_sensor_px(optics)
+        return Calibration((step_y * um, step_x * um), (origin[0] * um, origin[1] * um), "um")
+    return Calibration((step_y, step_x), origin, "pixel")

@@ -6,7 +6,7 @@ anything it does not handle: it looks only at file names, sizes and
 headers, never at pixel data. Decoding happens in the returned reader
 function, through :func:`napari_lfalias.load`.
 
-A lenslet capture is claimed only with its calibration:
+A lenslet capture is decoded with its calibration:
 
 - a white image beside it (a name with ``white``, ``radiometry`` or
   ``flat``; a dark frame with ``dark`` or ``black`` is used too), of the
@@ -16,15 +16,27 @@ A lenslet capture is claimed only with its calibration:
   fitted on an image of the capture's size;
 - or given: the capture opened together with its white (and dark) image,
   ``viewer.open([capture, white, dark], stack=True)``.
+
+Readers say why they cannot read something that looks like theirs: a
+folder of at least four images whose names do not lay out a full grid, or
+one image large enough to be a lenslet capture (a single grey or colour
+plane of at least :data:`MIN_CAPTURE_SIDE` pixels a side) with no usable
+calibration beside it, is claimed, and reading it fails with the
+library's own message (what is missing, what to do) in GUI words, shown
+as a napari notification and raised. Files that cannot be ours (tiny
+images, stacks, white or dark frames themselves) are declined at once, so
+napari's own readers take them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import struct
 from pathlib import Path
 
+from ..errors import LightFieldError
 from ._layers import lightfield_layer_data
 
 __all__ = [
@@ -35,10 +47,15 @@ __all__ = [
     "find_calibration_frames",
     "find_grid_file",
     "is_camera_array_folder",
+    "ReadError",
+    "MIN_CAPTURE_SIDE",
+    "capture_name",
 ]
 
 #: Fewest views that make a folder a light field.
 _MIN_VIEWS = 4
+#: Smallest side, in pixels, of an image that could be a raw lenslet capture (a few lenses of a few pixels).
+MIN_CAPTURE_SIDE = 64
 
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".dng"}
 _LYTRO_SUFFIXES = {".lfr", ".lfp", ".raw"}
@@ -85,13 +102,33 @@ def is_camera_array_folder(folder):
     return rows * cols >= _MIN_VIEWS
 
 
+def _holds_views(folder):
+    """True if ``folder`` holds at least 4 view images (names checked, never pixels)."""
+    from ..decoders.images import is_image_file
+
+    try:
+        count = 0
+        for entry in os.scandir(folder):
+            count += entry.is_file() and is_image_file(Path(entry.name))
+            if count >= _MIN_VIEWS:
+                return True
+    except OSError:
+        return False
+    return False
+
+
 def get_camera_array_reader(path):
     """Reader for a folder of views (HCI ``input_Cam*.png``, Stanford ``out_*``, ``*_RR_CC.*``).
 
-    Returns ``None`` for files and for folders without such view files.
+    A folder of at least four images whose names do not lay out a full
+    grid (a view missing, names without row and column) is claimed too:
+    reading it fails with the decoder's message, which says what is wrong.
+    Returns ``None`` for files, ``.zarr`` stores and folders with fewer images.
     """
     path = _single_path(path)
-    if path is None or not path.is_dir() or not is_camera_array_folder(path):
+    if path is None or not path.is_dir() or path.suffix.lower() == ".zarr":
+        return None
+    if not (is_camera_array_folder(path) or _holds_views(path)):
         return None
     return _read_with(path, path.name, {})
 
@@ -231,6 +268,18 @@ def _tiff_shape(path):
         return None
 
 
+def _tiff_is_one_plane(path):
+    """True if the TIFF holds one grey or colour plane (not a stack or hyperstack)."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            shape = tif.series[0].shape
+    except Exception:  # an unreadable TIFF is not ours to claim
+        return False
+    return len(shape) == 2 or (len(shape) == 3 and shape[-1] in (3, 4))
+
+
 def _image_shape(path):
     """(rows, cols) of an image read from its header only, or ``None`` if unknown."""
     suffix = path.suffix.lower()
@@ -242,6 +291,16 @@ def _image_shape(path):
     except OSError:
         return None
     return None
+
+
+def _could_be_a_capture(path):
+    """True if ``path`` looks like a raw lenslet capture from its header: one plane, large enough."""
+    if path.suffix.lower() == ".dng":
+        return True
+    shape = _image_shape(path)
+    if shape is None or min(shape) < MIN_CAPTURE_SIDE:
+        return False
+    return path.suffix.lower() == ".png" or _tiff_is_one_plane(path)
 
 
 def _same_size(capture, frame):
@@ -295,24 +354,36 @@ def _given(paths):
 def get_lenslet_reader(path):
     """Reader for a lenslet raw image with its calibration (see the module notes).
 
-    Returns ``None`` (fast: names and image headers only) for the white or
-    dark frames themselves, for images with no white image or grid model
-    beside them, for a white image or grid of another size, and for light
-    fields saved by napari-lfalias (their own reader takes them).
+    An image with a usable white image or grid model beside it is decoded
+    with them. One that could be a capture but has none (or only one of
+    another size) is claimed too: reading it fails with the decoder's
+    message (what is missing, how to give it). Returns ``None`` (fast:
+    names and image headers only) for the white or dark frames
+    themselves, for stacks, small images and files with unreadable
+    headers, and for light fields saved by napari-lfalias (their own
+    reader takes them).
     """
     paths = _paths(path)
     if len(paths) > 1:
         given = _given(paths)
         if given is None or _saved_header(given[0]) is not None:
             return None
-        return _read_with(given[0], given[0].stem, given[1])
+        return _read_with(given[0], capture_name(given[0]), given[1])
     path = paths[0]
     if path.suffix.lower() not in _IMAGE_SUFFIXES or _is_calibration_frame(path) or not path.is_file():
         return None
-    if _saved_header(path) is not None:
+    if _saved_header(path) is not None or _saved_output(path) is not None:
         return None
     options = _beside(path)
-    return None if options is None else _read_with(path, path.stem, options)
+    if options is None and not _could_be_a_capture(path):
+        return None
+    return _read_with(path, capture_name(path), options or {})
+
+
+def capture_name(path):
+    """Layer name of a capture: its file name and folder (``light_field (antleg)``), so two differ."""
+    folder = path.parent.name
+    return f"{path.stem} ({folder})" if folder else path.stem
 
 
 # -- light fields saved by napari-lfalias ---------------------------------------
@@ -324,25 +395,44 @@ def _saved_header(path):
     return is_lightfield_file(path)
 
 
-def get_saved_lightfield_reader(path):
-    """Reader for light fields written by ``napari_lfalias.io_write.write_lightfield``.
+def _saved_output(path):
+    from ._writer import output_file_header
 
-    ImageJ hyperstack TIFFs and ``.zarr`` stores are claimed only when they
-    carry the napari-lfalias header (checked from the file's metadata).
+    return output_file_header(path)
+
+
+def get_saved_lightfield_reader(path):
+    """Reader for light fields and widget outputs saved by napari-lfalias.
+
+    Light fields written by ``napari_lfalias.io_write.write_lightfield``
+    (ImageJ hyperstack TIFFs and ``.zarr`` stores with the napari-lfalias
+    header) open as light-field layers; outputs saved from napari
+    (:mod:`._writer`) open as the same kind of layer, with their
+    parameters. Both are recognised from the file's metadata only.
     """
     path = _single_path(path)
     if path is None or path.suffix.lower() not in (".tif", ".tiff", ".zarr"):
         return None
-    if _saved_header(path) is None:
-        return None
+    if _saved_header(path) is not None:
 
-    def read_saved(_path):
-        from ..io_write import read_lightfield
+        def read_saved(_path):
+            from ..io_write import read_lightfield
 
-        lf = read_lightfield(path, lazy=path.suffix.lower() == ".zarr")
-        return [lightfield_layer_data(lf, path.stem)]
+            with _said(path):
+                lf = read_lightfield(path, lazy=path.suffix.lower() == ".zarr")
+            return [lightfield_layer_data(lf, path.stem)]
 
-    return read_saved
+        return read_saved
+    if _saved_output(path) is not None:
+
+        def read_saved_output(_path):
+            from ._writer import read_output
+
+            with _said(path):
+                return [read_output(path)]
+
+        return read_saved_output
+    return None
 
 
 # -- Lytro ----------------------------------------------------------------
@@ -379,7 +469,7 @@ def get_lytro_reader(path):
         return None
     if _is_calibration_frame(path) or not _is_lytro_file(path):
         return None
-    return _read_with(path, path.stem, _beside(path) or {})
+    return _read_with(path, capture_name(path), _beside(path) or {})
 
 
 # -- the reader function ----------------------------------------------------
@@ -396,8 +486,33 @@ def _read_with(source, name, options):
         from .. import load
         from ._optics import attach_optics
 
-        lf = load(source, **options)
+        with _said(source):
+            lf = load(source, **options)
         attach_optics(lf, source)
         return [lightfield_layer_data(lf, name)]
 
     return read_lightfield
+
+
+class ReadError(LightFieldError):
+    """A light field the plugin claimed could not be read; the message is the library's, in GUI words."""
+
+
+@contextlib.contextmanager
+def _said(source):
+    """Turn a library error while reading ``source`` into a :class:`ReadError` the user is shown.
+
+    napari wraps a reader's exception in its own "Tried opening with ...,
+    but failed" when it chose the reader from the preferences, so the
+    reason is also posted as a napari notification.
+    """
+    from napari.utils.notifications import show_error
+
+    from ._controls import in_gui_words
+
+    try:
+        yield
+    except LightFieldError as error:
+        message = in_gui_words(str(error))
+        show_error(f"napari-lfalias could not open {Path(source).name}: {message}")
+        raise ReadError(message) from error

@@ -20,22 +20,28 @@ is nil on textured scenes (no tile is flat) and small elsewhere.
 Each computation is a generator that yields ``(done, total)`` between its
 steps (and, when the Cv has to wait for the detector, a
 :class:`~._jobs.Partial` refocused image), so a worker running it reports
-progress and stops at the next yield when it is cancelled. The detector is not thread-safe: a job takes the session's lock
-around every call into it, and waits for the lock by yielding, so a job
-queued behind a reduction can still be stopped. Nothing is yielded while
-the lock is held.
+progress and stops at the next yield when it is cancelled. The detector
+is not thread-safe: a job takes the session's lock around every call into
+it, and waits for the lock by yielding, so a job queued behind a
+reduction can still be stopped. Nothing is yielded while the lock is
+held: a reduction takes it for each of its stages and gives it back
+between them, so a job stopped (or never resumed) at a yield holds no
+lock, and a focus change detects between two stages of a reduction.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
 import threading
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ._jobs import Partial
 
-__all__ = ["DetectionParams", "AliasingSession", "focus_range"]
+__all__ = ["DetectionParams", "AliasingSession", "Preview", "focus_range", "library_defaults"]
 
 #: Largest focus slope, in pixels per view step, when the data carry no disparities.
 DEFAULT_MAX_SLOPE = 2.0
@@ -43,19 +49,118 @@ DEFAULT_MAX_SLOPE = 2.0
 MAX_SHIFT_FRACTION = 0.25
 #: How long a job waits for the detector before yielding again (seconds).
 LOCK_POLL_S = 0.02
+#: Samples (views x pixels) from which a focus change shows a coarse preview first:
+#: 8 x 8 x 354 x 354 and larger (the full computation takes 60 ms or more there).
+PREVIEW_MIN_SAMPLES = 8_000_000
+#: Most samples (views x pixels) a preview works on: its pyramid level is the first at or below
+#: it (level 2, a quarter of the resolution, for 9 x 9 x 512 x 512), so it takes ~15 ms.
+PREVIEW_SAMPLES = 1_500_000
+#: Time a preview should take (seconds): slower (a loaded machine), the next one is one level coarser.
+PREVIEW_BUDGET_S = 0.025
+#: Smallest side (pixels) of a preview level.
+PREVIEW_MIN_SIDE = 32
+#: Pause between the preview and the full-resolution work (seconds): a drag of the focus
+#: slider moves on within it, and only the preview of each position is computed.
+PREVIEW_PAUSE_S = 0.06
+
+
+@dataclass(frozen=True)
+class Preview:
+    """A focus change's first result: a coarse pyramid level, enlarged to full size (nearest pixel).
+
+    Attributes
+    ----------
+    image : ndarray, shape (Y, X, C)
+        The refocused views of the level.
+    cv, mask : ndarray, shape (Y, X), or None
+        The exact Cv of the level and its mask (``None`` while the detector is busy).
+    level : int
+        The pyramid level (each of its pixels is a ``2**level`` square block).
+    shown : threading.Event
+        Set by the GUI once the preview is on screen.
+    """
+
+    image: np.ndarray
+    cv: np.ndarray | None
+    mask: np.ndarray | None
+    level: int = 1
+    shown: threading.Event = field(default_factory=threading.Event, compare=False)
+
+
+def _enlarge(image, shape, level):
+    """``image`` of pyramid ``level`` enlarged to ``shape`` (each pixel a ``2**level`` square block)."""
+    factor = 2**level
+    big = np.repeat(np.repeat(image, factor, axis=0), factor, axis=1)
+    return np.ascontiguousarray(big[: shape[0], : shape[1]])
+
+
+def _pause(seconds, step, until=None, longest_s=1.0):
+    """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile.
+
+    With ``until`` (a ``threading.Event``), go on pausing until it is set
+    too, for at most ``longest_s``.
+    """
+    began = time.perf_counter()
+    while True:
+        waited = time.perf_counter() - began
+        if waited >= longest_s or (waited >= seconds and (until is None or until.is_set())):
+            return
+        time.sleep(0.005)
+        yield step
+
+
+#: Parameters of ``reduce_aliasing`` the widget has controls for (their defaults are the library's).
+LIBRARY_PARAMETERS = ("gamma", "n_patterns", "threshold", "method", "max_level", "keep_in_focus")
+#: The widget's seed: the library's default (``None``) draws new patterns on every call, which a
+#: spin box cannot show; seed 0 makes the widget repeat the API's ``seed=0`` result.
+WIDGET_SEED = 0
+
+
+def library_defaults():
+    """The library's defaults of the parameters the widget controls (from ``reduce_aliasing``'s signature).
+
+    Read, never copied, so a change of the library's defaults reaches the widget.
+
+    Examples
+    --------
+    >>> sorted(library_defaults())
+    ['gamma', 'keep_in_focus', 'max_level', 'method', 'n_patterns', 'threshold']
+    """
+    import inspect
+
+    from ..presets import INTERACTIVE_METHOD
+    from ..reduce import reduce_aliasing, reduction_options
+
+    signature = inspect.signature(reduce_aliasing).parameters
+    defaults = {name: signature[name].default for name in LIBRARY_PARAMETERS}
+    detection, max_level, _ = reduction_options()  # what the library puts for the parameters left at None
+    resolved = {**detection, "max_level": max_level}
+    defaults = {name: resolved[name] if value is None else value for name, value in defaults.items()}
+    if defaults["method"] not in ("analytic", "monte_carlo"):
+        # the widget's live Cv layer: one pass per focus change (presets.INTERACTIVE_METHOD)
+        defaults["method"] = INTERACTIVE_METHOD
+    return defaults
+
+
+def _library_default(name):
+    return field(default_factory=lambda: library_defaults()[name])
 
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Parameters of Algorithm 1 (and 2), as the widget's controls hold them."""
+    """Parameters of Algorithm 1 (and 2), as the widget's controls hold them.
 
-    gamma: float = 0.2
-    n_patterns: int = 100
-    threshold: float = 0.02
-    method: str = "analytic"
-    seed: int = 0
-    max_level: int = 3
-    keep_in_focus: bool = False
+    Defaults are the library's (:func:`library_defaults`); the seed is
+    :data:`WIDGET_SEED`.
+    """
+
+    gamma: float = _library_default("gamma")
+    n_patterns: int = _library_default("n_patterns")
+    threshold: float = _library_default("threshold")
+    method: str = _library_default("method")
+    seed: int = WIDGET_SEED
+    max_level: int = _library_default("max_level")
+    keep_in_focus: bool = _library_default("keep_in_focus")
 
     def detect_kwargs(self):
         """Keyword arguments of ``detect_aliasing`` and ``reduce_aliasing``."""
@@ -143,6 +248,10 @@ class AliasingSession:
         self._detector = None
         self._lock = threading.Lock()
         self._last = None  # (detection key, Detection)
+        self._pyramid = None  # the light field's pyramid down to the coarsest preview level
+        self._coarser = 0  # 1 while previews on the base level take longer than their budget
+        self._previews = 0  # previews made at the current level
+        self._streak = 0  # previews in a row that ask for the other level
 
     @property
     def source_lf(self):
@@ -158,6 +267,7 @@ class AliasingSession:
         """Drop the detector and the kept detection (a running job keeps its own reference)."""
         self._detector = None
         self._last = None
+        self._pyramid = None
 
     # -- the kept detection ----------------------------------------------------
     def detection(self, slope, params):
@@ -231,16 +341,32 @@ class AliasingSession:
 
         Returns a job that yields ``(done, total)`` steps and returns
         ``(image, detection)``: the refocused image ``(Y, X, C)`` and the
-        Detection (``None`` without ``detect``). The refocus needs no lock;
-        when the detector is busy (a reduction runs), the image is yielded
-        at once as a :class:`~._jobs.Partial` and the job then waits for the
-        detector. Otherwise both come together, so the viewer updates (and
-        redraws) once per focus change.
+        Detection (``None`` without ``detect``).
+
+        Early results come as :class:`~._jobs.Partial` values:
+
+        - a :class:`Preview` first, for a light field large enough
+          (:meth:`previews`): the refocus and Cv of a coarse pyramid level
+          (:meth:`preview_level`), shown at full size;
+          the job then pauses :data:`PREVIEW_PAUSE_S`, and until the GUI has
+          shown it (``Preview.shown``), so that a newer focus change stops it
+          before the full-resolution work, whose kernels would keep the GUI
+          thread from drawing;
+        - the refocused image alone, when the detector is busy (a reduction
+          runs): the refocus needs no lock, the Cv waits for the detector.
+
+        Otherwise image and detection come together, so the viewer updates
+        (and redraws) once per focus change.
         """
         from .. import refocus
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
+        if self.previews():
+            preview = self._preview(detector, slope, params if detect else None)
+            yield Partial(preview)
+            # the full-resolution kernels hold the GIL: start them once the preview is on screen
+            yield from _pause(PREVIEW_PAUSE_S, (1, 2), until=preview.shown)
         image = refocus(detector.lf, slope)
         if not detect:
             return image, None
@@ -252,6 +378,64 @@ class AliasingSession:
         finally:
             self._lock.release()
         return image, detection
+
+    def _samples(self):
+        lf = self._source
+        return lf.n_views * lf.image_shape[0] * lf.image_shape[1]
+
+    def previews(self):
+        """True if a focus change shows a coarse preview first (light fields of at least
+        :data:`PREVIEW_MIN_SAMPLES` samples per channel)."""
+        return self._samples() >= PREVIEW_MIN_SAMPLES
+
+    def preview_level(self):
+        """The pyramid level previews are computed on.
+
+        The first level with at most :data:`PREVIEW_SAMPLES` samples; one
+        coarser once two previews in a row there took longer than
+        :data:`PREVIEW_BUDGET_S` (a loaded machine), back once two took less
+        than a fifth of it.
+        """
+        return self._base_level() + self._coarser
+
+    def _base_level(self):
+        return max(1, math.ceil(math.log(self._samples() / PREVIEW_SAMPLES, 4)))
+
+    def _preview(self, detector, slope, params):
+        """The :class:`Preview` at ``slope``: a coarse refocus (and Cv, when the detector is free)."""
+        from .. import refocus
+        from ..pyramid import lightfield_pyramid
+
+        level = self.preview_level()
+        if self._pyramid is None:
+            self._pyramid = lightfield_pyramid(detector.lf, self._base_level() + 1)
+        began = time.perf_counter()  # (made once: the pyramid is not what a preview costs)
+        shape = detector.lf.image_shape
+        image = _enlarge(refocus(self._pyramid[level], slope / 2**level), shape, level)
+        if params is None or not self._lock.acquire(blocking=False):
+            return Preview(image, None, None, level)
+        try:
+            coarse = detector.detect(slope, level=level, **params.detect_kwargs())
+        finally:
+            self._lock.release()
+        self._adapt(time.perf_counter() - began, min(shape) >> (self._base_level() + 1))
+        return Preview(image, _enlarge(coarse.cv, shape, level), _enlarge(coarse.mask, shape, level), level)
+
+    def _adapt(self, seconds, coarser_side):
+        """Go one level coarser after two previews over their budget in a row; back after two quick ones.
+
+        The first preview of a level is not counted: it makes that level's caches.
+        """
+        self._previews += 1
+        if self._previews == 1:
+            return
+        if self._coarser == 0:
+            slow = seconds > PREVIEW_BUDGET_S and coarser_side >= PREVIEW_MIN_SIDE
+        else:
+            slow = seconds < PREVIEW_BUDGET_S / 5  # "slow" to change back: quick at the coarser level
+        self._streak = self._streak + 1 if slow else 0
+        if self._streak >= 2:
+            self._coarser, self._streak, self._previews = 1 - self._coarser, 0, 0
 
     def detect(self, slope, params):
         """Detect aliasing at ``slope`` (reusing the detector's shifted views).
@@ -273,11 +457,28 @@ class AliasingSession:
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
-        yield from self._wait((0, 2))
-        try:
-            # the core's own steps: progress per stage, and a quit() takes effect between two of them
-            return (yield from iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
-                                                    keep_in_focus=params.keep_in_focus, detector=detector,
-                                                    **params.detect_kwargs()))
-        finally:
-            self._lock.release()
+        # the core's own steps: progress per stage, and a quit() takes effect between two of them
+        stages = iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
+                                      keep_in_focus=params.keep_in_focus, detector=detector,
+                                      **params.detect_kwargs())
+        return (yield from self._stepwise(stages, (0, 2)))
+
+    def _stepwise(self, stages, waiting):
+        """Run the generator ``stages`` one step at a time under the lock, free between steps.
+
+        The lock is taken (by yielding ``waiting``) for each step and given
+        back before its progress is yielded, so a focus change can detect
+        between two stages of a reduction, and a job stopped at a yield
+        holds nothing. Closing this generator closes ``stages``.
+        """
+        with contextlib.closing(stages):
+            while True:
+                yield from self._wait(waiting)
+                try:
+                    step = next(stages)
+                except StopIteration as done:
+                    return done.value
+                finally:
+                    self._lock.release()
+                yield step
+                waiting = step if isinstance(step, tuple) else waiting

@@ -1,18 +1,23 @@
 """The main widget: refocus a light field, detect and reduce angular aliasing live.
 
 Controls follow DESIGN section 6: a light-field layer, the focus (slope),
-gamma, N, T, the method, the pyramid depth and the seed. Outputs are layers
-tagged ``layer.metadata["lfalias"]`` (``"refocus"``, ``"cv"``, ``"mask"``,
-``"level"``, ``"fused"``) and updated in place. Each output's parameters are
-in ``layer.metadata["lfalias_params"]``.
+the relaxation gamma, N, T, the method, the pyramid depth and the seed;
+their defaults are the library's (:func:`~._session.library_defaults`).
+Outputs are layers tagged ``layer.metadata["lfalias"]`` (``"refocus"``,
+``"cv"``, ``"mask"``, ``"level"``, ``"fused"``), updated in place and laid
+out by the rules of :mod:`._layers`: the aliased pixels as a translucent
+mask over the refocused image, the Cv hidden until asked for (then opaque,
+with a colorbar and contrast that follows it), the reduced result beside
+the refocused image with its level map (legend in the widget). Each
+output's parameters are in ``layer.metadata["lfalias_params"]``.
 
 Focus and T are live: moving the focus refocuses and (exact method)
-re-detects in a worker thread, both shown together (one redraw), or the
-refocused image first when the Cv has to wait for a running reduction;
-moving T only re-thresholds the kept Cv, in the GUI thread. Monte
-Carlo detection and reduction run in workers with progress; a newer request
-or the Cancel button stops a running job at its next step, and a result
-computed for parameters that have changed since is dropped. The
+re-detects in a worker thread, both shown together (one redraw); a large
+light field shows a half-resolution preview first. Moving T only
+re-thresholds the kept Cv, in the GUI thread. Monte Carlo detection and
+reduction run in workers with progress; a newer request or Cancel stops a
+running job at its next step, and a result computed for parameters that
+have changed since is dropped, with a message when it is a reduction. The
 computations and their caches are in :mod:`._session` (one
 :class:`~napari_lfalias.detect.AliasingDetector` per light field).
 """
@@ -20,7 +25,7 @@ computations and their caches are in :mod:`._session` (one
 from __future__ import annotations
 
 import numpy as np
-from qtpy.QtCore import Qt, Signal
+from qtpy.QtCore import Qt, QTimer, Signal
 from qtpy.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -30,22 +35,91 @@ from qtpy.QtWidgets import (
     QLabel,
     QProgressBar,
     QPushButton,
+    QSizePolicy,
     QSpinBox,
     QVBoxLayout,
     QWidget,
 )
 from superqt import QLabeledDoubleSlider
 
+from . import _warmup
 from ._controls import LogSlider, report_failure
-from ._jobs import JobRunner
 from ._depth import depth_label
-from ._layers import PARAMS_KEY, find_output_layer, lightfield_layers, lightfield_of, show_output
-from ._session import AliasingSession, DetectionParams, focus_range
+from ._jobs import JobRunner
+from ._layers import (
+    LEVEL_COLOURS,
+    PARAMS_KEY,
+    ROLES,
+    SOURCE_KEY,
+    adaptive_limits,
+    find_output_layer,
+    lightfield_layers,
+    lightfield_of,
+    output_layers,
+    placement,
+    show_output,
+)
+from ._session import AliasingSession, DetectionParams, Preview, focus_range
 
-__all__ = ["AliasingWidget"]
+__all__ = ["AliasingWidget", "METHODS", "TOOLTIPS"]
 
-METHODS = ("analytic", "monte_carlo")
+#: The method combo's entries: what the user reads -> the library's ``method``.
+METHODS = {"exact (analytic)": "analytic", "Monte Carlo (the paper)": "monte_carlo"}
 PROGRESS_STEPS = 100
+#: How often the widget looks at the kernels' warm-up while it runs (ms).
+WARMUP_POLL_MS = 250
+
+#: What each control means (measured numbers from benchmarks/results/detection.md).
+TOOLTIPS = {
+    "layer": "The light-field layer to work on (any layer opened by this plugin's readers or samples).",
+    "focus": "Disparity brought into focus, in pixels per view step: a scene point that moves this "
+             "much between neighbouring views is sharp in the refocused image. The range comes from "
+             "the data's disparities, else from its geometry.",
+    "gamma": "Relaxation \u03b3 of Algorithm 1 (not the display gamma of a layer): each random "
+             "sampling pattern keeps between (1 - \u03b3) n and n of the n views. A larger \u03b3 "
+             "raises every Cv: Cv = \u221ac \u00d7 (spread of the views / their mean), "
+             "\u221ac = 0.042 for 8 x 8 views at \u03b3 = 0.2, 0.079 at \u03b3 = 0.5.",
+    "n": "Patterns N of the Monte-Carlo estimate (the paper's method only; the exact method is its "
+         "N \u2192 \u221e limit). Measured on 8 x 8 views: the Monte-Carlo Cv deviates 26 % from the "
+         "exact Cv at N = 10, 7 % at N = 100.",
+    "threshold": "A pixel is aliased where its Cv exceeds T. The line below says what T means for "
+                 "this light field. Measured against ground truth (the naive refocus 2 % off the "
+                 "dense-aperture image): T between 0.001 and 0.004 finds visible aliasing best "
+                 "(F1 0.49-0.96); the paper's T = 0.02 finds little of it on 8 x 8 views "
+                 "(F1 0.01-0.02). Type a value or drag (logarithmic).",
+    "method": "exact (analytic): the Cv the paper's estimate tends to for N \u2192 \u221e, in one "
+              "pass, no sampling noise. Monte Carlo (the paper): N random patterns, seeded.",
+    "level": "Coarsest pyramid level of the reduction (Algorithm 2): an aliased pixel is replaced "
+             "by the first level, up to this one, where it is no longer aliased; level l blurs "
+             "over about 2^l pixels.",
+    "seed": "Seed of the Monte-Carlo patterns: the same seed gives the API's detect_aliasing(..., "
+            "seed=...) result exactly.",
+    "keep": "Reduce only the occluder where a defocused object partly hides an in-focus surface, "
+            "and keep that surface sharp (beyond the paper; measured: +5.5 dB there at T = 0.005, "
+            "up to 1.5 dB lost over the image at T = 0.02).",
+    "live": "Recompute as the controls move; off: only Detect does.",
+    "detect": "Refocus and detect aliasing with the current settings.",
+    "reduce": "Reduce the aliasing (Algorithm 2): the reduced image appears beside the refocused one.",
+    "cancel": "Stop the running computation; its result is dropped.",
+    "depth": "Where the calibration allows it: the distance (camera arrays with HCI parameters) or the "
+             "axial position (light-field microscopes) of the plane in focus.",
+    "beside": "Show the reduced image (and its level map) beside the refocused image; "
+              "off: over it, to compare by toggling.",
+}
+
+
+def scale_bar(viewer):
+    """The viewer's scale bar (``viewer.canvas.overlays`` since napari 0.9, ``viewer.scale_bar`` before)."""
+    canvas = getattr(viewer, "canvas", None)
+    overlays = getattr(canvas, "overlays", None)
+    return overlays.scale_bar if overlays is not None else viewer.scale_bar
+
+
+def _level_legend(highest):
+    swatches = " ".join(
+        f'<span style="color:{LEVEL_COLOURS[level]}">\u25a0</span> {level}' for level in range(1, highest + 1)
+    )
+    return f"level map (a layer beside the refocused image): {swatches} (level l blurs over ~2^l px)"
 
 
 class AliasingWidget(QWidget):
@@ -68,17 +142,25 @@ class AliasingWidget(QWidget):
 
     def __init__(self, napari_viewer):
         super().__init__()
+        _warmup.start()
         self.viewer = napari_viewer
         self.session = None
         self.source = None
         self._source_layer = None
+        self._followed = set()  # ids of the light-field layers whose renames are followed
         self._closed = False
+        self._first_result = False  # the first focus job of a light field (reads it, makes its caches)
+        self._status_text = ""
         self.jobs = JobRunner(
-            on_progress=self._on_progress, on_error=self._on_error, on_idle=self._on_idle
+            on_progress=self._on_progress, on_error=self._on_error, on_idle=self._on_idle, owner=self
         )
         self._build()
         self.viewer.layers.events.inserted.connect(self._refresh_layers)
         self.viewer.layers.events.removed.connect(self._refresh_layers)
+        self._warm_timer = QTimer(self)
+        self._warm_timer.setInterval(WARMUP_POLL_MS)
+        self._warm_timer.timeout.connect(self._show_warmup)
+        self._warm_timer.start()
         self._refresh_layers()
 
     # -- construction -------------------------------------------------------------
@@ -97,8 +179,12 @@ class AliasingWidget(QWidget):
         self.n_spin.setRange(2, 100000)
         self.n_spin.setValue(defaults.n_patterns)
         self.threshold_slider = LogSlider(1e-4, 1.0, defaults.threshold)
+        self.threshold_hint = QLabel("")
+        self.threshold_hint.setWordWrap(True)
         self.method_combo = QComboBox()
-        self.method_combo.addItems(METHODS)
+        for text, method in METHODS.items():
+            self.method_combo.addItem(text, method)
+        self.method_combo.setCurrentIndex(self.method_combo.findData(defaults.method))
         self.level_spin = QSpinBox()
         self.level_spin.setRange(1, 8)
         self.level_spin.setValue(defaults.max_level)
@@ -107,8 +193,8 @@ class AliasingWidget(QWidget):
         self.seed_spin.setValue(defaults.seed)
         self.keep_check = QCheckBox("keep in-focus layer")
         self.keep_check.setChecked(defaults.keep_in_focus)
-        self.keep_check.setToolTip("Reduce: keep the in-focus surface sharp where a defocused occluder "
-                                   "partly hides it (beyond the paper; pays off at low T)")
+        self.beside_check = QCheckBox("reduced image beside the refocused one")
+        self.beside_check.setChecked(True)
         self.live_check = QCheckBox("live")
         self.live_check.setChecked(True)
         self.update_button = QPushButton("Detect")
@@ -120,18 +206,42 @@ class AliasingWidget(QWidget):
         self.progress.setValue(PROGRESS_STEPS)
         self.status = QLabel("")
         self.status.setWordWrap(True)
+        self.legend = QLabel("")
+        self.legend.setVisible(False)
+        for label in (self.status, self.legend, self.threshold_hint, self.depth_label):
+            # long messages wrap instead of widening the dock (and shrinking the canvas)
+            label.setWordWrap(True)
+            label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+
+        tips = (
+            (self.layer_combo, "layer"), (self.focus_slider, "focus"), (self.depth_label, "depth"),
+            (self.gamma_spin, "gamma"),
+            (self.n_spin, "n"), (self.threshold_slider, "threshold"), (self.threshold_hint, "threshold"),
+            (self.method_combo, "method"), (self.level_spin, "level"), (self.seed_spin, "seed"),
+            (self.keep_check, "keep"), (self.live_check, "live"), (self.update_button, "detect"),
+            (self.reduce_button, "reduce"), (self.cancel_button, "cancel"), (self.beside_check, "beside"),
+        )
+        for widget, key in tips:
+            widget.setToolTip(TOOLTIPS[key])
 
         form = QFormLayout()
         form.addRow("light field", self.layer_combo)
-        form.addRow("focus (slope, px)", self.focus_slider)
+        form.addRow("focus (px per view)", self.focus_slider)
         form.addRow("", self.depth_label)
-        form.addRow("gamma", self.gamma_spin)
-        form.addRow("N patterns", self.n_spin)
+        form.addRow("relaxation \u03b3", self.gamma_spin)
         form.addRow("threshold T", self.threshold_slider)
+        form.addRow("", self.threshold_hint)
         form.addRow("method", self.method_combo)
-        form.addRow("max level", self.level_spin)
+        form.addRow("patterns N", self.n_spin)
         form.addRow("seed", self.seed_spin)
+        form.addRow("coarsest level", self.level_spin)
         form.addRow("", self.keep_check)
+        form.addRow("", self.beside_check)
+        for row in range(form.rowCount()):  # the row labels explain themselves too
+            label = form.itemAt(row, QFormLayout.ItemRole.LabelRole)
+            field = form.itemAt(row, QFormLayout.ItemRole.FieldRole)
+            if label is not None and field is not None and label.widget() is not None:
+                label.widget().setToolTip(field.widget().toolTip())
         buttons = QHBoxLayout()
         for widget in (self.live_check, self.update_button, self.reduce_button, self.cancel_button):
             buttons.addWidget(widget)
@@ -140,62 +250,97 @@ class AliasingWidget(QWidget):
         layout.addLayout(buttons)
         layout.addWidget(self.progress)
         layout.addWidget(self.status)
+        layout.addWidget(self.legend)
         layout.addStretch(1)
 
-        self.layer_combo.currentTextChanged.connect(self._on_layer_chosen)
+        self.layer_combo.currentIndexChanged.connect(lambda _index: self._on_layer_chosen())
         self.focus_slider.valueChanged.connect(self._on_focus)
         self.threshold_slider.valueChanged.connect(self._on_threshold)
-        for signal in (
-            self.gamma_spin.valueChanged,
-            self.n_spin.valueChanged,
-            self.method_combo.currentTextChanged,
-            self.seed_spin.valueChanged,
-        ):
-            signal.connect(self._on_detection_params)
+        self.gamma_spin.valueChanged.connect(self._on_detection_params)
+        self.method_combo.currentIndexChanged.connect(self._on_method)
+        for spin in (self.n_spin, self.seed_spin):  # what only Monte Carlo uses
+            spin.valueChanged.connect(self._on_sampling_params)
+        self.level_spin.valueChanged.connect(self._on_reduction_params)
+        self.keep_check.toggled.connect(self._on_reduction_params)
+        self.beside_check.toggled.connect(self._place_outputs)
         self.live_check.toggled.connect(self._on_live)
         self.update_button.clicked.connect(self.update_now)
         self.reduce_button.clicked.connect(self.reduce)
         self.cancel_button.clicked.connect(self.cancel)
+        self._enable_sampling()
+        self._show_threshold_meaning()
 
     # -- the light-field layer ---------------------------------------------------
     def _refresh_layers(self, event=None):
         if self._closed:
             return
-        names = [layer.name for layer in lightfield_layers(self.viewer)]
-        current = self.layer_combo.currentText()
+        layers = lightfield_layers(self.viewer)
+        for layer in layers:
+            if id(layer) not in self._followed:
+                layer.events.name.connect(self._on_renamed)
+                self._followed.add(id(layer))
+        current = self._source_layer if self._source_layer in layers else None
+        if current is None and layers and event is not None and getattr(event, "type", "") == "inserted":
+            current = layers[-1]
+        elif current is None and layers:
+            current = layers[0]
         self.layer_combo.blockSignals(True)
         self.layer_combo.clear()
-        self.layer_combo.addItems(names)
-        if current in names:
-            self.layer_combo.setCurrentText(current)
-        elif names and event is not None and getattr(event, "type", "") == "inserted":
-            self.layer_combo.setCurrentText(names[-1])
+        self.layer_combo.addItems([layer.name for layer in layers])
+        if current is not None:
+            self.layer_combo.setCurrentIndex(layers.index(current))
         self.layer_combo.blockSignals(False)
-        chosen = self.layer_combo.currentText() or None
-        if chosen != self.source:
-            self._on_layer_chosen(chosen or "")
+        if current is not self._source_layer or (current is None and self.session is not None):
+            self._on_layer_chosen()
 
-    def _on_layer_chosen(self, name):
+    def _chosen_layer(self):
+        layers = lightfield_layers(self.viewer)
+        index = self.layer_combo.currentIndex()
+        return layers[index] if 0 <= index < len(layers) else None
+
+    def _on_renamed(self, event):
+        """Follow a light-field layer's new name: in the chooser, and in its outputs."""
+        if self._closed:
+            return
+        layer = event.source
+        if layer is self._source_layer and layer.name != self.source:
+            old, self.source = self.source, layer.name
+            for output in output_layers(self.viewer, old):
+                output.metadata[SOURCE_KEY] = self.source
+                default = f"{ROLES[output.metadata['lfalias']].title} [{old}]"
+                if output.name == default:  # a name the user chose stays
+                    output.name = f"{ROLES[output.metadata['lfalias']].title} [{self.source}]"
+        self._refresh_layers()
+
+    def _on_layer_chosen(self):
+        layer = self._chosen_layer()
+        if layer is self._source_layer and self.session is not None:
+            return
+        self._stop_reduction("another light field was chosen")
         self.jobs.cancel()
         self._close_session()
-        layer = self.viewer.layers[name] if name and name in self.viewer.layers else None
         lf = lightfield_of(layer) if layer is not None else None
         if lf is None:
-            self.session, self.source = None, None
-            self.status.setText("Open a light field (File > Open, or File > Open Sample).")
+            self._source_layer = None
+            self._set_status("Open a light field (File > Open, or File > Open Sample).")
             return
         self.session = AliasingSession(lf)
-        self.source = name
+        self.source = layer.name
         self._source_layer = layer
+        self._first_result = True
         low, high = focus_range(lf)
         self.focus_slider.blockSignals(True)
         self.focus_slider.setRange(low, high)
         self.focus_slider.setValue(float(np.clip(0.0, low, high)))
         self.focus_slider.blockSignals(False)
         self._show_depth()
-        self.status.setText(f"{name}: {lf.grid_shape[0]}x{lf.grid_shape[1]} views of "
-                            f"{lf.image_shape[0]}x{lf.image_shape[1]}")
-        if self.live_check.isChecked():
+        self._show_threshold_meaning()
+        live = self.live_check.isChecked()
+        then = ("preparing it (once per layer: reading it, its luminance and tile ranges)..." if live
+                else "press Detect")
+        self._set_status(f"{layer.name}: {lf.grid_shape[0]}x{lf.grid_shape[1]} views of "
+                         f"{lf.image_shape[0]}x{lf.image_shape[1]}; {then}")
+        if live:
             self.update_now()
 
     # -- parameters -----------------------------------------------------------------
@@ -204,13 +349,22 @@ class AliasingWidget(QWidget):
         """The focus slope the controls show."""
         return float(self.focus_slider.value())
 
+    @property
+    def method(self):
+        """The library's name of the chosen method (``"analytic"`` or ``"monte_carlo"``)."""
+        return self.method_combo.currentData()
+
+    def set_method(self, method):
+        """Choose the method by the library's name (``"analytic"`` or ``"monte_carlo"``)."""
+        self.method_combo.setCurrentIndex(self.method_combo.findData(method))
+
     def params(self):
         """The detection parameters the controls show."""
         return DetectionParams(
             gamma=float(self.gamma_spin.value()),
             n_patterns=int(self.n_spin.value()),
             threshold=float(self.threshold_slider.value()),
-            method=self.method_combo.currentText(),
+            method=self.method,
             seed=int(self.seed_spin.value()),
             max_level=int(self.level_spin.value()),
             keep_in_focus=self.keep_check.isChecked(),
@@ -222,16 +376,40 @@ class AliasingWidget(QWidget):
         self.depth_label.setText(text)
         self.depth_label.setVisible(bool(text))
 
+    def _show_threshold_meaning(self):
+        """What T means for this light field: the spread of the views it flags (Cv = sqrt(c) x spread)."""
+        from ..detect import variance_factors
+
+        if self.session is None:
+            self.threshold_hint.setText("")
+            return
+        n = self.session.source_lf.n_views
+        gamma = float(self.gamma_spin.value())
+        root_c = float(np.sqrt(variance_factors(n, gamma)[n]))
+        spread = self.threshold_slider.value() / root_c if root_c > 0 else float("inf")
+        self.threshold_hint.setText(
+            f"aliased where the views spread by more than {spread:.0%} of their mean "
+            f"({n} views, \u03b3 = {gamma:g}: Cv = {root_c:.3f} \u00d7 spread)"
+        )
+
+    def _enable_sampling(self):
+        monte_carlo = self.method == "monte_carlo"
+        for spin in (self.n_spin, self.seed_spin):
+            spin.setEnabled(monte_carlo)
+
     # -- reactions to the controls --------------------------------------------------
     def _on_focus(self, _value=None):
         self.jobs.bump()
+        self._stop_reduction(f"the focus moved to {self.slope:.2f}")
         self._show_depth()
         if self.live_check.isChecked():
             self.refocus()
 
     def _on_threshold(self, _value=None):
+        self._show_threshold_meaning()
         if self.session is None:
             return
+        self._stop_reduction("T changed")
         detection = self.session.detection(self.slope, self.params())
         if detection is not None:
             self._show_detection(detection, self.slope, with_cv=False)
@@ -239,9 +417,22 @@ class AliasingWidget(QWidget):
             self.detect()  # nothing kept for these parameters yet
 
     def _on_detection_params(self, _value=None):
+        self._show_threshold_meaning()
         self.jobs.bump()
+        self._stop_reduction("the detection parameters changed")
         if self.live_check.isChecked():
             self.detect()
+
+    def _on_method(self, _index=None):
+        self._enable_sampling()
+        self._on_detection_params()
+
+    def _on_sampling_params(self, _value=None):
+        if self.method == "monte_carlo":  # the exact Cv depends on neither N nor the seed
+            self._on_detection_params()
+
+    def _on_reduction_params(self, _value=None):
+        self._stop_reduction("the reduction parameters changed")
 
     def _on_live(self, checked):
         if checked:
@@ -257,6 +448,8 @@ class AliasingWidget(QWidget):
         self.jobs.submit("focus", self._focus_job)
         if self.jobs.busy("focus"):
             self.cancel_button.setEnabled(True)
+            if self._first_result:
+                self._set_busy_bar(True)
 
     def detect(self):
         """Detect aliasing with the current controls (reusing the shifted views)."""
@@ -264,10 +457,16 @@ class AliasingWidget(QWidget):
         self._busy("detect")
 
     def reduce(self):
-        """Reduce aliasing with the current controls (Algorithm 2) in a worker."""
+        """Reduce aliasing with the current controls (Algorithm 2) in a worker.
+
+        A reduction already running is stopped (and said so); this one
+        replaces it.
+        """
+        replaced = self.jobs.busy("reduce")
         self.jobs.submit("reduce", self._reduce_job)
         if self._busy("reduce"):
-            self.status.setText(f"reducing aliasing at slope {self.slope:.2f}...")
+            note = " (the running reduction was stopped)" if replaced else ""
+            self._set_status(f"reducing aliasing at slope {self.slope:.2f}...{note}")
 
     def cancel(self):
         """Stop running jobs; their results are dropped.
@@ -277,7 +476,16 @@ class AliasingWidget(QWidget):
         result is dropped.
         """
         self.jobs.cancel()
-        self.status.setText("cancelled")
+        self._set_status("cancelled")
+
+    def _stop_reduction(self, reason):
+        """Stop a running reduction whose parameters no longer hold, and say so (status and notification)."""
+        from napari.utils.notifications import show_info
+
+        if self.jobs.stop("reduce"):
+            message = f"reduction stopped: {reason}; press Reduce aliasing to reduce with the new settings"
+            self._set_status(message)
+            show_info(message)
 
     def shutdown(self):
         """Stop running jobs, wait for their threads, and stop following the viewer.
@@ -288,8 +496,11 @@ class AliasingWidget(QWidget):
             True if every worker ended.
         """
         self._closed = True
+        self._warm_timer.stop()
         for emitter in (self.viewer.layers.events.inserted, self.viewer.layers.events.removed):
             emitter.disconnect(self._refresh_layers)
+        for layer in self.viewer.layers:
+            layer.events.name.disconnect(self._on_renamed)
         ended = self.jobs.shutdown()
         if ended:
             self._close_session()
@@ -313,9 +524,12 @@ class AliasingWidget(QWidget):
         job = self.session.focus(slope, params, detect=exact)
         shown = []
 
-        def refocused(image):  # early, while the Cv waits for a running reduction
-            self._show_refocus(image, slope)
-            shown.append(True)
+        def early(value):  # a preview, or the image while the Cv waits for a running reduction
+            if isinstance(value, Preview):
+                self._show_preview(value, slope, params)
+            else:
+                self._show_refocus(value, slope)
+                shown.append(True)
 
         def done(result):
             image, detection = result
@@ -325,8 +539,9 @@ class AliasingWidget(QWidget):
                 self._show_detection(detection, slope)
             else:
                 self.detect()  # Monte Carlo: in its own slot, with progress
+            self._first_result = False
 
-        return job, done, refocused
+        return job, done, early
 
     def _detect_job(self):
         if self.session is None:
@@ -343,7 +558,9 @@ class AliasingWidget(QWidget):
 
         def done(reduction):
             if params != self.params():
-                return  # T or the depth changed while it ran: stale
+                self._set_status("reduction dropped: the settings changed while it ran; press Reduce "
+                                 "aliasing again")
+                return
             self._show_reduction(reduction, slope, params)
 
         return job, done
@@ -360,21 +577,40 @@ class AliasingWidget(QWidget):
         return image[..., 0] if image.ndim == 3 and image.shape[-1] == 1 else image
 
     def _show(self, role, data, params, **kwargs):
+        first = find_output_layer(self.viewer, role, self.source) is None
+        kwargs.update(placement(self._source_layer, role, self.beside_check.isChecked()))
         layer = show_output(self.viewer, role, data, self.source, params=params, **kwargs)
+        if first:
+            self._first_layer(layer, role)
         self.outputs_updated.emit(role, params)
         return layer
+
+    def _first_layer(self, layer, role):
+        """A new output layer: stop drawing what it covers, and frame what is to be seen."""
+        if role == "refocus":
+            self._source_layer.visible = False  # the opaque refocused image covers the views
+        if role in ("refocus", "fused"):
+            if placement(self._source_layer, role)["units"][0] != "pixel":
+                scale_bar(self.viewer).visible = True
+            self.viewer.reset_view()
 
     def _source_contrast(self):
         return list(self._source_layer.contrast_limits)
 
-    def _show_refocus(self, image, slope):
-        first = find_output_layer(self.viewer, "refocus", self.source) is None
-        self._show(
-            "refocus", self._image(image), self._meta(slope), contrast_limits=self._source_contrast()
-        )
-        if first:
-            # the opaque refocused image covers the views: stop drawing them
-            self._source_layer.visible = False
+    def _show_refocus(self, image, slope, **extra):
+        self._show("refocus", self._image(image), self._meta(slope, **extra),
+                   contrast_limits=self._source_contrast())
+
+    def _show_preview(self, preview, slope, params):
+        """The coarse first result of a focus change (refined by the full one)."""
+        self._show_refocus(preview.image, slope, preview=preview.level)
+        if preview.cv is not None:
+            meta = self._meta(slope, params, preview=preview.level)
+            self._show("cv", preview.cv, meta,
+                       contrast_limits=adaptive_limits(preview.cv, at_least=2 * params.threshold))
+            self._show("mask", preview.mask.astype(np.uint8), meta)
+        self._set_status(f"slope {slope:.2f}: preview at 1/{2**preview.level} of the resolution...")
+        QTimer.singleShot(0, preview.shown.set)  # after the canvas' repaint, which is already queued
 
     def _show_detection(self, detection, slope, with_cv=True):
         """Show the Cv map and the mask (only the mask when just T changed).
@@ -387,30 +623,65 @@ class AliasingWidget(QWidget):
         detection = self.session.detection(slope, params) or detection
         meta = self._meta(slope, params)
         if with_cv:
-            cv_layer = self._show("cv", detection.cv, meta)
-            if not cv_layer.metadata.get("lfalias_scaled"):
-                # T sits in the lower part of the colour range, the Cv spread above it
-                top = max(2 * params.threshold, float(np.percentile(detection.cv, 99.5)), 1e-6)
-                cv_layer.contrast_limits = [0.0, top]
-                cv_layer.metadata["lfalias_scaled"] = True
+            self._show("cv", detection.cv, meta,
+                       contrast_limits=adaptive_limits(detection.cv, at_least=2 * params.threshold))
         else:
             cv_layer = find_output_layer(self.viewer, "cv", self.source)
             if cv_layer is not None:
                 cv_layer.metadata[PARAMS_KEY] = meta
         self._show("mask", detection.mask.astype(np.uint8), meta)
         aliased = float(np.mean(detection.mask)) * 100
-        self.status.setText(f"slope {slope:.2f}: {aliased:.1f}% of pixels aliased (T = {params.threshold:.4g})")
+        self._set_status(f"slope {slope:.2f}: {aliased:.1f}% of pixels aliased (magenta; T = "
+                         f"{params.threshold:.4g}; the Cv layer is hidden until you show it)")
 
     def _show_reduction(self, reduction, slope, params):
         meta = self._meta(slope, params)
-        self._show("fused", self._image(reduction.image), meta,
-                   contrast_limits=self._source_contrast())
+        self._show("fused", self._image(reduction.image), meta, contrast_limits=self._source_contrast())
         self._show("level", reduction.level, meta)
-        self.status.setText(
-            f"reduced at slope {slope:.2f}: levels up to {int(np.max(reduction.level))}"
-        )
+        highest = int(np.max(reduction.level))
+        self.legend.setText(_level_legend(max(highest, 1)))
+        self.legend.setVisible(True)
+        side = "right" if self.beside_check.isChecked() else "over the refocused image"
+        self._set_status(f"reduced at slope {slope:.2f} ({side}): "
+                         f"{float(np.mean(reduction.level > 0)):.1%} of pixels from levels up to {highest}")
 
-    # -- progress -----------------------------------------------------------------------------
+    def _place_outputs(self, _checked=None):
+        """Move the outputs beside (or over) the refocused image, as the check box says."""
+        if self._source_layer is None:
+            return
+        for layer in output_layers(self.viewer, self.source):
+            layer.translate = placement(self._source_layer, layer.metadata["lfalias"],
+                                        self.beside_check.isChecked())["translate"]
+        self.viewer.reset_view()
+
+    # -- status and progress ------------------------------------------------------------------
+    def _set_status(self, text):
+        self._status_text = text
+        if not (_warmup.state() == "compiling" and self.jobs.busy()):
+            self.status.setText(text)
+
+    def _show_warmup(self):
+        """While the kernels compile, say so (with a busy bar) instead of looking idle."""
+        state = _warmup.state()
+        if state == "compiling" and not self._closed:
+            self.status.setText("compiling the numeric kernels (first use only; they are cached for "
+                                "next time)...")
+            self._set_busy_bar(True)
+        elif state == "ready":
+            self._warm_timer.stop()
+            if self.status.text() != self._status_text:
+                self.status.setText(self._status_text)
+            if not self.jobs.busy():
+                self._set_busy_bar(False)
+
+    def _set_busy_bar(self, busy):
+        """An indeterminate (busy) bar, or back to a 0..100 bar."""
+        if busy:
+            self.progress.setRange(0, 0)
+        elif self.progress.maximum() == 0:
+            self.progress.setRange(0, PROGRESS_STEPS)
+            self.progress.setValue(PROGRESS_STEPS)
+
     # QProgressBar.setValue repaints at once, and a synchronous repaint of the
     # dock also redraws the canvas (~40 ms in software OpenGL): the bar is
     # left alone by the short focus jobs and moved only by detection and
@@ -419,17 +690,21 @@ class AliasingWidget(QWidget):
         busy = self.jobs.busy(slot)
         if busy:
             self.cancel_button.setEnabled(True)
+            self._set_busy_bar(False)
             self.progress.setValue(0)
         return busy
 
     def _on_progress(self, slot, done, total):
-        if slot != "focus":
+        if slot != "focus" and self.progress.maximum() != 0:
             self.progress.setValue(int(PROGRESS_STEPS * done / max(total, 1)))
 
     def _on_error(self, slot, error):
         report_failure(self.status, slot, error)
+        self._status_text = self.status.text()
 
     def _on_idle(self):
         self.cancel_button.setEnabled(False)
+        if _warmup.state() != "compiling":
+            self._set_busy_bar(False)
         if self.progress.value() != PROGRESS_STEPS:
             self.progress.setValue(PROGRESS_STEPS)

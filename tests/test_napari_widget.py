@@ -706,9 +706,17 @@ def test_the_controls_show_the_librarys_defaults(make_napari_viewer, qtbot, monk
     from napari_lfalias import reduce as reduce_module
     from napari_lfalias._napari._session import DetectionParams, library_defaults
 
+    from napari_lfalias.presets import INTERACTIVE_METHOD
+
     signature = inspect.signature(reduce_module.reduce_aliasing).parameters
     defaults = library_defaults()
-    assert defaults == {name: signature[name].default for name in defaults}
+    resolved, max_level, _ = reduce_module.reduction_options()  # what the library uses for None
+    library = {**resolved, "max_level": max_level}
+    for name in defaults:
+        expected = signature[name].default if signature[name].default is not None else library[name]
+        if name == "method" and expected == "depth":
+            expected = INTERACTIVE_METHOD  # the live Cv layer's method
+        assert defaults[name] == expected, name
     viewer = make_napari_viewer()
     widget = _open_widget(viewer, qtbot)
     shown = widget.params()

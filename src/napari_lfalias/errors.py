@@ -11,6 +11,8 @@ __all__ = [
     "DecodeError",
     "CalibrationError",
     "OutputExistsError",
+    "DarkFrameError",
+    "WhiteImageError",
 ]
 
 
@@ -36,3 +38,12 @@ class CalibrationError(LightFieldError, ValueError):
 
 class OutputExistsError(LightFieldError, FileExistsError):
     """An output file exists and replacing it was not asked for."""
+
+
+class DarkFrameError(DecodeError):
+    """A dark frame that cannot belong to the capture (it leaves nothing of it: the capture itself, say)."""
+
+
+class WhiteImageError(DecodeError):
+    """A white image that does not fit the capture (colour for a grey capture, NaN pixels), or a
+    folder of white images with none for the capture's camera settings."""

@@ -52,7 +52,7 @@ def lenslet_options(white=None, dark=None, grid=None):
     return options
 
 
-def open_input(path, white=None, dark=None, grid=None):
+def open_input(path, white=None, dark=None, grid=None, progress=None):
     """Open ``path`` (views folder, lenslet capture, or a converted light field).
 
     Parameters
@@ -64,6 +64,8 @@ def open_input(path, white=None, dark=None, grid=None):
         White (flat-field) and dark frames of a lenslet capture.
     grid : GridModel or str or Path, optional
         A calibrated grid model (or its JSON file) to skip calibration.
+    progress : callable, optional
+        ``progress(done, total, step)`` while a lenslet capture decodes.
 
     Returns
     -------
@@ -86,7 +88,10 @@ def open_input(path, white=None, dark=None, grid=None):
                 f"{path}: already a decoded light field; --white, --dark and --grid do not apply"
             )
         return io_write.read_lightfield(path)
-    return load(path, **lenslet_options(white, dark, grid))
+    options = lenslet_options(white, dark, grid)
+    if progress is not None and path.is_file():
+        options["progress"] = progress
+    return load(path, **options)
 
 
 def check_reduce_options(slope, **options):

@@ -2,7 +2,8 @@
 
 The approach follows Dansereau's LFToolbox (``LFBuildLensletGridModel``:
 locate lens centres as peaks of the filtered white image, fit an ideal
-lattice), with three changes that remove its hand-set parameters:
+lattice with separate horizontal and vertical spacings), without its
+hand-set parameters and to sub-pixel accuracy:
 
 1. **Rough lattice from the spectrum.** The power spectrum of the
    (windowed) white image has its strongest peaks on the reciprocal
@@ -11,21 +12,32 @@ lattice), with three changes that remove its hand-set parameters:
    is hexagonal or rectangular. No approximate pitch is needed, and a
    picture with no grid (noise, a flat field) has no peak standing out:
    a :class:`~napari_lfalias.errors.CalibrationError`.
-2. **Sub-pixel centres on a flattened image.** The white image is divided
-   by its envelope (Gaussian of one pitch), so vignetting neither biases
-   the centres nor hides the lenses in dark corners. Lenses are the local
-   maxima of the flattened image smoothed by a fifth of the pitch; their
-   centres are the centroids of the flattened image above its mid-level
-   within a disc around each maximum (weights that fade to zero at the
-   contour do not lock onto whole pixels). Regions darker than a fifth of
-   the bright level (dark borders) are ignored.
-3. **Lattice fit that grows from the centre.** Lattice indices are
-   assigned near the image centre first, the lattice (offset, pitch,
-   rotation; ideal square or hexagonal shape) is fitted by linear least
-   squares, and the region is doubled until it covers the image; outliers
-   (missing or doubled peaks) are rejected by their residual. Where the
-   optics bend the grid measurably (real relay lenses), a cubic
-   displacement of the centres is fitted to the residuals as well.
+2. **Rough lattice from the peaks.** Every lit lens is a local maximum of
+   the white image divided by its envelope (:func:`~.lens_centres.find_peaks`,
+   at about 7 pixels per pitch: a large sensor is reduced first). Lattice
+   indices are assigned near the image centre first and the lattice fitted
+   region by region, doubling until it covers the image
+   (:func:`~.lattice_fit.grow_lattice`). A hexagonal grid is fitted with
+   its rows along the x axis and along the y axis (on the transposed
+   image); the rows nearer x are kept unless the other orientation fits
+   clearly better. The half-pitch shift of alternate rows, and which rows
+   carry it, come out of the lattice fit itself (its second basis vector
+   is half a pitch along the row), so both parities need no guess.
+3. **Sub-pixel centres, then the final fit.** With the rough lattice known,
+   every lens (an even subset of a large sensor's, about 30 000) is
+   measured inside its own cell, the vignetting's tilt divided out
+   (:func:`~.lens_centres.cell_centroids`), and the lattice is fitted again
+   by robust Gauss-Newton least squares (Tukey biweights) with five
+   parameters: offset, pitch, rotation and the distance between rows
+   (:mod:`.lattice_fit`). Twice: the second pass measures the cells of the
+   refined grid. Where the optics bend the grid measurably (real relay
+   lenses), a cubic displacement of the centres is fitted to the residuals
+   as well.
+
+Measured on synthetic white images with known grids (pitch 8-30 px,
+rotation +-2 deg, vignetting, Bayer, noise): lens centres to a few
+thousandths of a pixel and pitch to a few thousandths of a percent
+(``benchmarks/results/lenslet.md``).
 """
 
 from __future__ import annotations

@@ -313,10 +313,10 @@ def load_lenslet_steps(path, white=None, dark=None, grid=None, **options):
             f"unknown option(s) for a lenslet capture: {', '.join(unknown)}; accepted: {', '.join(_OPTIONS)}"
         )
     bayer = options.pop("bayer", None)
+    yield 0, 1, "reading the capture"
+    raw = read_sensor(path, bayer=bayer)  # first: a file that is no capture says so, white or not
     if white is None and grid is None:
         raise _needs_white(path)
-    yield 0, 1, "reading the capture"
-    raw = read_sensor(path, bayer=bayer)
     if white is not None and not _is_white_folder(white):
         white = as_sensor_image(white, bayer=bayer, name="white")
     dark_image = None if dark is None else as_sensor_image(dark, name="dark")

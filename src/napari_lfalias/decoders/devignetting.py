@@ -51,7 +51,7 @@ WHITE_PERCENTILE = 99.5
 #: A clipping plateau holds at least this many pixels, and this fraction of them.
 _PLATEAU = (16, 1e-5)
 #: Pixels looked at for the white image's percentile (an even subsample of large sensors).
-_PERCENTILE_SAMPLES = 1 << 22
+_PERCENTILE_SAMPLES = 1 << 18
 
 
 def _frame(image):

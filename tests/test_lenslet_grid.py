@@ -161,7 +161,7 @@ def _random_cases(count, seed):
             "kind": ("rectangular", "hexagonal")[i % 2],
             "pitch": pitch,
             "rotation": float(rng.uniform(-2.0, 2.0)),
-            "offset": tuple(rng.uniform(-2.0, 0.0, size=2) * pitch),
+            "offset": tuple(rng.uniform(-3.0, -2.0, size=2) * pitch),  # the true grid covers the sensor
             "hex_shift_row": int(rng.integers(2)),
             "vignetting": float(rng.uniform(0.2, 0.5)),
             "bayer": (None, "RGGB", "GRBG", "BGGR")[int(rng.integers(4))],

@@ -24,7 +24,7 @@ hand-set parameters and to sub-pixel accuracy:
    carry it, come out of the lattice fit itself (its second basis vector
    is half a pitch along the row), so both parities need no guess.
 3. **Sub-pixel centres, then the final fit.** With the rough lattice known,
-   every lens (an even subset of a large sensor's, about 30 000) is
+   every lens (an even subset of a large sensor's, about 20 000) is
    measured inside its own cell, the vignetting's tilt divided out
    (:func:`~.lens_centres.cell_centroids`), and the lattice is fitted again
    by robust Gauss-Newton least squares (Tukey biweights) with five
@@ -61,7 +61,7 @@ _PEAK_CONTRAST = 100.0
 #: Fewest lens centres a fit needs.
 _MIN_LENSES = 12
 #: Lenses measured to sub-pixel precision on a large sensor (an even subset; the fit needs no more).
-_MEASURED_LENSES = 30000
+_MEASURED_LENSES = 20000
 #: Rough peaks used to index the lattice on a large sensor (an even subset).
 _ROUGH_PEAKS = 20000
 _SQRT3_2 = math.sqrt(3.0) / 2.0

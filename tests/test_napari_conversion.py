@@ -218,3 +218,26 @@ def test_full_size_brick_room_sample_opens(make_napari_viewer):
     viewer.open_sample(PLUGIN, "brick_room")
     lf = lightfield_of(viewer.layers[0])
     assert lf.shape == (8, 8, 512, 512, 3)
+
+
+def test_the_conversion_widget_follows_the_decode_steps(make_napari_viewer, qtbot, guv):
+    raw, white, dark = guv
+    viewer = make_napari_viewer()
+    widget = _conversion_widget(viewer, raw, white, dark)
+    values, texts = [], []
+    widget.progress.valueChanged.connect(values.append)
+    widget.status.setText("")
+    original = widget._on_progress
+
+    def record(slot, done, total, step=None):
+        original(slot, done, total, step)
+        texts.append(widget.status.text())
+
+    widget.jobs._on_progress = record
+    widget.convert()
+    _finish(qtbot, widget)
+    assert any("calibrating the microlens grid" in text for text in texts)
+    assert sum("slicing views" in text for text in texts) == 8
+    assert values == sorted(values) and values[-1] == widget.progress.maximum() and len(set(values)) > 5
+    assert not widget.progress.isVisible()  # hidden once the job is done
+    assert widget.shutdown()

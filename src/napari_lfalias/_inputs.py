@@ -72,7 +72,7 @@ def lenslet_options(white=None, dark=None, grid=None):
     return options
 
 
-def open_input(path, white=None, dark=None, grid=None, nonfinite=None):
+def open_input(path, white=None, dark=None, grid=None, nonfinite=None, progress=None):
     """Open ``path`` (views folder, lenslet capture, or a saved light field) with :func:`napari_lfalias.load`.
 
     Parameters
@@ -87,6 +87,8 @@ def open_input(path, white=None, dark=None, grid=None, nonfinite=None):
         (or its JSON file) of a lenslet capture, to skip calibration.
     nonfinite : {"raise", "mask"}, optional
         What to do with NaN or Inf samples.
+    progress : callable, optional
+        ``progress(done, total, step)`` while a lenslet capture decodes.
 
     Returns
     -------
@@ -98,11 +100,14 @@ def open_input(path, white=None, dark=None, grid=None, nonfinite=None):
         If the input cannot be read, or an option does not apply to it; the
         message names the file or option.
     """
+    from .io_read import is_lightfield_file
     from .loading import load
 
     options = lenslet_options(white, dark, grid)
     if nonfinite is not None:
         options["nonfinite"] = nonfinite
+    if progress is not None and Path(path).is_file() and is_lightfield_file(path) is None:
+        options["progress"] = progress
     return load(path, **options)
 
 

@@ -89,7 +89,8 @@ def _add_input(parser):
 
 def _add_lenslet_options(parser):
     lenslet = parser.add_argument_group("input")
-    lenslet.add_argument("--white", metavar="FILE", help="white (flat-field) image of the lenslet array")
+    lenslet.add_argument("--white", metavar="FILE", help="white (flat-field) image of the lenslet array, or a folder "
+                         "of them (one is chosen by the capture's zoom and focus)")
     lenslet.add_argument("--dark", metavar="FILE", help="dark frame subtracted from capture and white")
     lenslet.add_argument(
         "--grid", metavar="UxV|JSON",

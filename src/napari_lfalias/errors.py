@@ -13,6 +13,8 @@ __all__ = [
     "OutputExistsError",
     "NonFiniteError",
     "LightFieldWarning",
+    "DarkFrameError",
+    "WhiteImageError",
 ]
 
 
@@ -46,3 +48,12 @@ class OutputExistsError(LightFieldError, FileExistsError):
 
 class LightFieldWarning(UserWarning):
     """Something a user should know about an input that was still read (views missing from a grid, ...)."""
+
+
+class DarkFrameError(DecodeError):
+    """A dark frame that cannot belong to the capture (it leaves nothing of it: the capture itself, say)."""
+
+
+class WhiteImageError(DecodeError):
+    """A white image that does not fit the capture (colour for a grey capture, NaN pixels), or a
+    folder of white images with none for the capture's camera settings."""

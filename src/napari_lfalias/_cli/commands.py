@@ -9,7 +9,7 @@ from .._inputs import check_reduce_options, open_input, resolved_options, view_g
 from .._validate import finite_float
 from ..errors import ParameterError
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
-from .progress import Stages
+from .progress import Stages, StepProgress
 
 __all__ = ["run_convert", "run_refocus", "run_detect", "run_reduce", "detect_options", "reduce_options",
            "thresholded_cv", "given_inputs"]
@@ -54,7 +54,15 @@ def given_inputs(args):
 
 def _open(args, stages):
     with stages("load"):
-        return open_input(args.input, white=args.white, dark=args.dark, grid=args.grid, nonfinite=args.nonfinite)
+        progress = StepProgress("decoding", quiet=args.quiet)
+        try:
+            lf = open_input(args.input, white=args.white, dark=args.dark, grid=args.grid, nonfinite=args.nonfinite,
+                            progress=progress)
+        except BaseException:
+            progress.close(failed=True)
+            raise
+        progress.close()
+        return lf
 
 
 def _image_range(image, args, stream):

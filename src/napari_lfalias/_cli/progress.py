@@ -6,7 +6,7 @@ import sys
 import time
 from contextlib import contextmanager
 
-__all__ = ["Progress", "Stages"]
+__all__ = ["Progress", "StepProgress", "Stages"]
 
 
 class Progress:
@@ -39,6 +39,50 @@ class Progress:
             return
         prefix = "\r" if self.live else ""
         self.stream.write(f"{prefix}{self.label}: {self.count}/{self.total} finished\n")
+        self.stream.flush()
+
+
+class StepProgress:
+    """The steps of a long decode on stderr: ``label: k/n step``, redrawn in place on a terminal.
+
+    Called as ``progress(done, total, step)`` (the decoders' ``progress=``).
+    Off a terminal only the final line is printed, and only if a step was
+    reported; ``quiet=True`` prints nothing.
+
+    Examples
+    --------
+    >>> import io
+    >>> out = io.StringIO()
+    >>> progress = StepProgress("decoding", stream=out)
+    >>> progress(0, 2, "calibrating"); progress(2, 2, "done"); progress.close()
+    >>> out.getvalue().strip()
+    'decoding: 2/2 steps finished'
+    """
+
+    def __init__(self, label, quiet=False, stream=None):
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.live = not quiet and getattr(self.stream, "isatty", lambda: False)()
+        self.last = None
+
+    def __call__(self, done, total, step):
+        self.last = (done, total)
+        if self.live:
+            self.stream.write(f"\r{self.label}: {done}/{total} {step}\x1b[K")
+            self.stream.flush()
+
+    def close(self, failed=False):
+        """End the display: the final line, or (``failed``) just clear the live one."""
+        if self.quiet or self.last is None:
+            return
+        if failed:
+            if self.live:
+                self.stream.write("\r\x1b[K")
+                self.stream.flush()
+            return
+        line = f"{self.label}: {self.last[0]}/{self.last[1]} steps finished"
+        self.stream.write(f"\r{line}\x1b[K\n" if self.live else f"{line}\n")
         self.stream.flush()
 
 

@@ -8,7 +8,9 @@ the raw image into a light-field layer with that grid (calibrating first
 if needed), which the main widget then works on. "Save grid" writes the
 fitted grid as JSON, so the capture can later be opened directly (the
 lenslet reader finds a ``*grid*.json`` beside it). Calibration and
-conversion run in worker threads; errors are shown, never swallowed.
+conversion run in worker threads; errors are shown, never swallowed. A
+progress bar and the status line follow the decoder's steps (calibration,
+division by the white image, slicing in blocks of lens rows).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from qtpy.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QLineEdit,
+    QProgressBar,
     QPushButton,
     QVBoxLayout,
     QWidget,
@@ -114,7 +117,10 @@ class LensletConversionWidget(QWidget):
         self.save_button.setEnabled(False)
         self.status = QLabel("")
         self.status.setWordWrap(True)
-        self.jobs = JobRunner(on_error=self._on_error, on_idle=self._on_idle, owner=self)
+        self.progress = QProgressBar()
+        self.progress.setVisible(False)
+        self.jobs = JobRunner(on_progress=self._on_progress, on_error=self._on_error, on_idle=self._on_idle,
+                              owner=self)
         self.grid = None
         self._grid_inputs = None  # (white, dark, kind) the grid was fitted with
 
@@ -129,6 +135,7 @@ class LensletConversionWidget(QWidget):
         layout = QVBoxLayout(self)
         layout.addLayout(form)
         layout.addLayout(buttons)
+        layout.addWidget(self.progress)
         layout.addWidget(self.status)
         layout.addStretch(1)
 
@@ -272,16 +279,14 @@ class LensletConversionWidget(QWidget):
         grid, kind = self._kept_grid(white, dark), self._kind()
 
         def job():
-            from .. import load
+            from ..decoders.lenslet import load_lenslet_steps
             from ._optics import attach_optics
 
-            yield (0, 1)
-            options = {"white": white, "dark": dark, "grid": grid}
+            options = {"dark": dark, "grid": grid}
             options = {key: value for key, value in options.items() if value is not None}
             if grid is None and kind != "auto":
                 options["kind"] = kind
-            lf = load(raw, **options)
-            yield (1, 1)
+            lf = yield from load_lenslet_steps(raw, white, **options)  # yields (done, total, step)
             return attach_optics(lf, raw)
 
         def done(lf):
@@ -312,7 +317,16 @@ class LensletConversionWidget(QWidget):
         if busy:
             self.status.setText("working...")
 
+    def _on_progress(self, slot, done, total, step=None):
+        """Show a job's progress: the bar, and the decoder's step in the status line."""
+        self.progress.setVisible(True)
+        self.progress.setRange(0, max(int(total), 1))
+        self.progress.setValue(int(done))
+        if step is not None:
+            self.status.setText(f"{slot}: {step} ({done}/{total})")
+
     def _on_idle(self):
+        self.progress.setVisible(False)
         self._set_busy(False)
 
     def _on_error(self, slot, error):

@@ -9,10 +9,11 @@ without the dark rims between microlenses.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit, prange
 
 from ..errors import ParameterError
 
-__all__ = ["BAYER_PATTERNS", "bayer_pattern", "channel_index", "demosaic", "cfa_grey", "mosaic"]
+__all__ = ["BAYER_PATTERNS", "bayer_pattern", "channel_index", "demosaic", "demosaic16", "cfa_grey", "mosaic"]
 
 #: The four 2x2 Bayer layouts, named by their top-left 2x2 block read row by row.
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -85,17 +86,47 @@ def demosaic(raw, pattern):
     >>> [round(float(c), 3) for c in demosaic(mosaic(rgb, "GRBG"), "GRBG")[4, 4]]
     [0.8, 0.5, 0.2]
     """
+    rgb16, step = demosaic16(raw, pattern)
+    out = np.empty(rgb16.shape, np.float32)
+    _dequantise(rgb16, step, out)
+    return out
+
+
+def demosaic16(raw, pattern, top=None):
+    """:func:`demosaic` kept in 16 bits: ``(rgb16, step)`` with ``rgb16 * step`` the colour image.
+
+    ``top`` is the mosaic's maximum when known (else it is computed); the
+    16-bit scale spans ``[0, max(top, 1)]``.
+    """
     import cv2
 
     pattern = bayer_pattern(pattern)
     raw = np.asarray(raw, np.float32)
     if raw.ndim != 2 or min(raw.shape) < 2:
         raise ParameterError(f"a Bayer mosaic must be a 2-D image of at least 2 x 2, got shape {raw.shape}")
-    top = float(raw.max()) if raw.size else 1.0
+    top = (float(raw.max()) if raw.size else 1.0) if top is None else float(top)
     scale = _SCALE / max(top, 1.0)
-    quantised = np.clip(raw * scale + 0.5, 0, _SCALE).astype(np.uint16)
+    quantised = np.empty(raw.shape, np.uint16)
+    _quantise(raw, scale, quantised)
     code = getattr(cv2, f"COLOR_Bayer{_OPENCV_CODE[pattern]}2RGB_EA")
-    return cv2.cvtColor(quantised, code).astype(np.float32) / np.float32(scale)
+    return cv2.cvtColor(quantised, code), 1.0 / scale
+
+
+@njit(cache=True, parallel=True)
+def _quantise(raw, scale, out):
+    """``out = round(raw * scale)`` clipped to 16 bits (one pass, no temporaries: large sensors)."""
+    for y in prange(raw.shape[0]):
+        for x in range(raw.shape[1]):
+            value = raw[y, x] * scale + 0.5
+            out[y, x] = 0 if value < 0.0 else (65535 if value > 65535.0 else int(value))
+
+
+@njit(cache=True, parallel=True)
+def _dequantise(rgb16, inv_scale, out):
+    for y in prange(rgb16.shape[0]):
+        for x in range(rgb16.shape[1]):
+            for c in range(rgb16.shape[2]):
+                out[y, x, c] = rgb16[y, x, c] * inv_scale
 
 
 def cfa_grey(raw):

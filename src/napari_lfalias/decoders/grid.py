@@ -9,16 +9,19 @@ coordinates, ``r`` the rotation), so lens ``(i, j)`` is centred at::
 
     offset + i * row_step * e_y + (j + s_i / 2) * pitch * e_x
 
-with ``row_step = pitch`` (rectangular) or ``pitch * sqrt(3) / 2``
-(hexagonal), and ``s_i = 1`` on the shifted rows of a hexagonal grid
+with ``row_step`` the distance between lens rows (``row_spacing``; by
+default ``pitch`` on a rectangular grid and ``pitch * sqrt(3) / 2`` on a
+hexagonal one, but fitted on its own, as LFToolbox fits its horizontal and
+vertical spacings, since real arrays and renderings are not always exactly
+regular), and ``s_i = 1`` on the shifted rows of a hexagonal grid
 (``i % 2 == hex_shift_row``), 0 otherwise. A hexagonal grid whose lens
 rows run vertically is modelled on the transposed image
 (``transposed=True``): its ``(y, x)`` are the image's ``(x, y)``.
 
-The decoder's output pixel ``(y, x)`` sits at
-``offset + row_step * (y * e_y + x * e_x)``: the lens ``(y, x)`` itself on
-a rectangular grid, and square pixels of side ``row_step`` on a hexagonal
-one.
+The decoder's output pixel ``(y, x)`` sits at :meth:`GridModel.pixel_centres`:
+``offset + y * row_step * e_y + x * pitch * e_x``, the lens ``(y, x)``
+itself, on a rectangular grid, and ``offset + row_step * (y * e_y + x * e_x)``,
+square pixels of side ``row_step``, on a hexagonal one.
 """
 
 from __future__ import annotations
@@ -48,7 +51,9 @@ def distortion_terms(points, shape):
     half = np.asarray(shape, np.float64) / 2.0
     y = (points[..., 0] - half[0]) / half[0]
     x = (points[..., 1] - half[1]) / half[1]
-    return np.stack([y ** a * x ** b for a, b in DISTORTION_TERMS], axis=-1)
+    one = np.ones_like(y)
+    ys, xs = [one, y, y * y, y * y * y], [one, x, x * x, x * x * x]
+    return np.stack([ys[a] * xs[b] for a, b in DISTORTION_TERMS], axis=-1)
 
 
 def _check_distortion(value):
@@ -98,6 +103,10 @@ class GridModel:
         normalised coordinates (see :meth:`displacement`).
     fit : dict
         Facts about the fit (lenses used, residual); informative only.
+    row_spacing : float, optional
+        Distance between lens rows in pixels; default the regular lattice's
+        (``pitch``, or ``pitch * sqrt(3) / 2`` on a hexagonal grid). Within
+        0.75 to 1.33 times that.
 
     Examples
     --------
@@ -120,6 +129,7 @@ class GridModel:
     transposed: bool = False
     distortion: tuple = ()
     fit: dict = field(default_factory=dict, compare=False)
+    row_spacing: float | None = None
 
     def __post_init__(self):
         if self.kind not in GRID_KINDS:
@@ -152,6 +162,22 @@ class GridModel:
         object.__setattr__(self, "transposed", bool(self.transposed))
         object.__setattr__(self, "fit", dict(self.fit or {}))
         object.__setattr__(self, "distortion", _check_distortion(self.distortion))
+        object.__setattr__(self, "row_spacing", self._checked_row_spacing())
+
+    def _checked_row_spacing(self):
+        regular = self.pitch * (_SQRT3_2 if self.is_hexagonal else 1.0)
+        if self.row_spacing is None:
+            return regular
+        value = self.row_spacing
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(float(value)):
+            raise CalibrationError(f"grid row_spacing must be a finite number, got {value!r}")
+        if not 0.75 * regular <= float(value) <= 1.33 * regular:
+            raise CalibrationError(
+                f"grid row_spacing {float(value):.4g} px is not within 0.75 to 1.33 times the regular "
+                f"{self.kind} spacing {regular:.4g} px for pitch {self.pitch:.4g} px"
+            )
+        return float(value)
 
     # -- geometry ------------------------------------------------------------
     @property
@@ -161,8 +187,13 @@ class GridModel:
 
     @property
     def row_step(self):
-        """Distance between lens rows in pixels (also the decoded pixel size)."""
-        return self.pitch * (_SQRT3_2 if self.is_hexagonal else 1.0)
+        """Distance between lens rows in pixels (the decoded pixel's height; its width too on a hexagonal grid)."""
+        return self.row_spacing
+
+    @property
+    def column_step(self):
+        """Distance between decoded pixels along the lens rows: ``pitch`` (rectangular) or ``row_step`` (hexagonal)."""
+        return self.row_step if self.is_hexagonal else self.pitch
 
     @property
     def axes(self):
@@ -232,6 +263,20 @@ class GridModel:
         last = (self.n_cols - 1 + 0.5) * self.pitch / self.row_step
         return self.n_rows, int(math.floor(last + 1e-9)) + 1
 
+    def pixel_centres(self, rows, cols):
+        """Model ``(y, x)`` of decoded pixels ``(rows, cols)`` (arrays that broadcast), on the ideal lattice.
+
+        Examples
+        --------
+        >>> grid = GridModel("hexagonal", 10.0, 0.0, (0.0, 0.0), 3, 3, (30, 30))
+        >>> grid.pixel_centres(np.array([1]), np.array([2])).round(3).tolist()
+        [[8.66, 17.321]]
+        """
+        e_y, e_x = self.axes
+        rows = np.asarray(rows, np.float64)[..., None]
+        cols = np.asarray(cols, np.float64)[..., None]
+        return np.asarray(self.offset) + rows * self.row_step * e_y + cols * self.column_step * e_x
+
     # -- JSON ----------------------------------------------------------------
     def to_dict(self):
         """The model as JSON-ready types."""
@@ -263,7 +308,7 @@ class GridModel:
         if missing:
             raise CalibrationError(f"grid model JSON lacks {', '.join(missing)}")
         options = {name: data[name] for name in names}
-        for name in ("hex_shift_row", "transposed", "distortion", "fit"):
+        for name in ("hex_shift_row", "transposed", "distortion", "fit", "row_spacing"):
             if name in data:
                 options[name] = data[name]
         try:
@@ -296,6 +341,6 @@ class GridModel:
         return cls.from_dict(data)
 
     def describe(self):
-        """One line for messages: kind, pitch, rotation, lens count."""
-        return (f"{self.kind} grid, pitch {self.pitch:.3f} px, rotation {self.rotation:+.3f} deg, "
-                f"{self.n_rows} x {self.n_cols} lenses")
+        """One line for messages: kind, pitch (and row spacing), rotation, lens count."""
+        return (f"{self.kind} grid, pitch {self.pitch:.3f} px, row spacing {self.row_step:.3f} px, "
+                f"rotation {self.rotation:+.3f} deg, {self.n_rows} x {self.n_cols} lenses")

@@ -3,17 +3,26 @@
 The steps, after Dansereau's LFToolbox (``LFDecodeLensletImageSimple``),
 with one resampling instead of its three:
 
-1. read the raw, white and dark images (:mod:`.sensor`);
+1. read the raw, white and dark images (:mod:`.sensor`); ``white=`` may be a
+   folder of white images, one chosen by the capture's zoom and focus
+   (:mod:`.white_images`);
 2. fit the microlens grid to the white image unless a grid is given
-   (:func:`~.calibration.calibrate`);
-3. subtract the dark frame and divide by the white image (devignetting);
-   the white image, relative to its bright level, is each pixel's
-   validity weight, and pixels below ``min_weight`` are dropped; a Bayer
-   mosaic is demosaiced after this division (OpenCV edge-aware), so the
-   lens rims do not leak colour into the views;
+   (:func:`~.calibration.calibrate`; cached per white image of a folder);
+3. subtract the dark frame and divide by the white image, clipping
+   saturated light so that every view agrees on it (:mod:`.devignetting`);
+   the white image, relative to its bright level, is each pixel's validity
+   weight, and pixels below ``min_weight`` are dropped; a Bayer mosaic is
+   demosaiced after this division, so the lens rims do not leak colour into
+   the views;
 4. slice (:mod:`.slicing`): every microlens is a pixel of every view, every
    pixel under a microlens a view, rotation removed and hexagonal rows
-   resampled to square pixels in the same interpolation.
+   resampled to square pixels in the same interpolation; only the output
+   pixels some view sees are computed (``trim``).
+
+:func:`decode_steps` is the same work as a generator that says which step
+comes next (the napari widget shows it); ``progress=`` of
+:func:`decode_lenslet` and :func:`load_lenslet` is called with the same
+``(done, total, step)`` (the command line prints it).
 
 Sign convention of the view positions
 -------------------------------------
@@ -43,14 +52,16 @@ from .. import _validate
 from ..errors import CalibrationError, DecodeError, ParameterError
 from ..lightfield import LightField, regular_positions
 from .calibration import calibrate
+from .devignetting import devignette, divide_by_white
 from .grid import GridModel
 from .sensor import as_sensor_image, read_sensor
 
-__all__ = ["calibrate", "GridModel", "load_lenslet", "decode_lenslet", "devignette"]
+__all__ = ["calibrate", "GridModel", "load_lenslet", "decode_lenslet", "decode_steps", "load_lenslet_steps",
+           "devignette"]
 
-_OPTIONS = ("bayer", "n_views", "outside", "min_weight", "trim", "kind", "pitch")
-#: The white level is this percentile of the white image (robust to hot pixels).
-_WHITE_PERCENTILE = 99.5
+_OPTIONS = ("bayer", "n_views", "outside", "min_weight", "trim", "kind", "pitch", "saturation", "progress")
+#: Blocks of lens rows the slicing is split into (one progress step each).
+_SLICE_BLOCKS = 8
 
 
 def _check_same_size(image, reference, what):
@@ -69,73 +80,6 @@ def _needs_white(label):
     )
 
 
-def _grey(data):
-    return data.mean(axis=-1) if data.ndim == 3 else data
-
-
-def devignette(raw, white=None, dark=None, min_weight=0.05):
-    """Dark-subtract and divide by the white image; demosaic a Bayer mosaic afterwards.
-
-    Parameters
-    ----------
-    raw, white, dark : SensorImage
-        The capture, its white image (or ``None``: no devignetting), and an
-        optional dark frame, all of one size.
-    min_weight : float
-        Pixels whose white level is below this fraction of the bright
-        level are dropped (value and weight 0).
-
-    Returns
-    -------
-    image : ndarray, shape (H, W, C), float32
-        ``(raw - dark) / (white - dark)``, negative values clipped to 0.
-    valid : ndarray, shape (H, W), float32
-        ``(white - dark)`` relative to the white level, clipped to [0, 1].
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from napari_lfalias.decoders.sensor import as_sensor_image
-    >>> white = as_sensor_image(np.array([[0.8, 0.4], [0.01, 0.8]], np.float32))
-    >>> raw = as_sensor_image(np.array([[0.4, 0.1], [0.01, 0.8]], np.float32))
-    >>> image, valid = devignette(raw, white)
-    >>> image[..., 0].round(2).tolist(), valid.round(2).tolist()
-    ([[0.5, 0.25], [0.0, 1.0]], [[1.0, 0.5], [0.0, 1.0]])
-    """
-    from .bayer import cfa_grey, demosaic
-
-    signal = np.asarray(raw.data, np.float32)
-    dark_data = None if dark is None else np.asarray(dark.data, np.float32)
-    if dark_data is not None:
-        if dark_data.ndim == 3 and signal.ndim == 2:
-            dark_data = dark_data.mean(axis=-1)
-        signal = signal - (dark_data if dark_data.ndim == signal.ndim else dark_data[..., None])
-    if white is None:
-        valid = np.ones(signal.shape[:2], np.float32)
-        ratio = np.clip(signal, 0.0, None)
-    else:
-        level = np.asarray(white.data, np.float32)
-        if dark_data is not None:
-            level = level - (dark_data if dark_data.ndim == level.ndim else
-                             (dark_data.mean(axis=-1) if dark_data.ndim == 3 else dark_data[..., None]))
-        grey_level = cfa_grey(level) if (white.bayer is not None and level.ndim == 2) else _grey(level)
-        bright = float(np.percentile(grey_level, _WHITE_PERCENTILE))
-        if not bright > 0:
-            raise CalibrationError(f"{white.label()}: the white image is dark everywhere (after the dark frame)")
-        valid = np.clip(grey_level / bright, 0.0, 1.0).astype(np.float32)
-        valid[valid < min_weight] = 0.0
-        if level.ndim == 2 and signal.ndim == 3:
-            level = level[..., None]
-        floor = np.float32(min_weight * bright)
-        ratio = np.where(level > floor, signal / np.maximum(level, floor), np.float32(0.0))
-        ratio = np.clip(ratio, 0.0, None)
-    if raw.bayer is not None and ratio.ndim == 2:
-        ratio = demosaic(ratio, raw.bayer)
-    if ratio.ndim == 2:
-        ratio = ratio[..., None]
-    return np.ascontiguousarray(ratio, np.float32), np.ascontiguousarray(valid, np.float32)
-
-
 def _view_count(grid, n_views, outside):
     radius = grid.pitch / 2.0
     if n_views is not None:
@@ -145,15 +89,6 @@ def _view_count(grid, n_views, outside):
     else:
         half = int(math.floor(radius - 1e-9))
     return 2 * max(half, 0) + 1
-
-
-def _trim_window(weights, min_weight):
-    """Bounding box (y0, y1, x0, x1) of the output pixels that any view sees with weight >= min_weight."""
-    seen = weights.max(axis=(0, 1)) >= min_weight
-    rows, cols = np.nonzero(seen.any(axis=1))[0], np.nonzero(seen.any(axis=0))[0]
-    if rows.size == 0:
-        return None
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 def _as_grid(grid, shape, label):
@@ -180,8 +115,117 @@ def _as_grid(grid, shape, label):
     return grid
 
 
+def _is_white_folder(white):
+    from .white_images import WhiteImageFolder
+
+    return isinstance(white, WhiteImageFolder) or (isinstance(white, (str, Path)) and Path(white).is_dir())
+
+
+def _white_from_folder(white, raw_image, dark_image, grid, bayer, calibrate_options):
+    """The white image a folder holds for this capture, its grid (cached) unless one is given, and the choice."""
+    from .white_images import WhiteImageFolder, capture_settings
+
+    folder = white if isinstance(white, WhiteImageFolder) else WhiteImageFolder(white)
+    choice = folder.choose(capture_settings(raw_image), raw_image.label())
+    white_image = as_sensor_image(choice.path, bayer=bayer, name="white")
+    _check_same_size(white_image, raw_image, "white image")
+    if grid is None:
+        grid = folder.grid(choice, calibrate_options, dark_image, white_image)
+    return white_image, grid, choice
+
+
+def _run(steps, progress):
+    """Drive a step generator, reporting ``(done, total, step)`` to ``progress``; returns its result."""
+    while True:
+        try:
+            step = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if progress is not None:
+            progress(*step)
+
+
+def decode_steps(raw, white=None, dark=None, grid=None, *, bayer=None, n_views=None, outside="weight",
+                 min_weight=0.05, trim=True, kind="auto", pitch=None, saturation="auto"):
+    """:func:`decode_lenslet` as a generator: yields ``(done, total, step)`` before each step, returns the LightField.
+
+    Examples
+    --------
+    >>> from napari_lfalias.synthetic import render_lenslet, textured_plane
+    >>> capture = render_lenslet(textured_plane(n_views=1, size=64), shape=(160, 160), pitch=9.3)
+    >>> steps = decode_steps(capture.raw, capture.white)
+    >>> next(steps)
+    (0, 11, 'calibrating the microlens grid')
+    """
+    _validate.one_of("outside", outside, ("weight", "crop"))
+    min_weight = _validate.in_open_interval("min_weight", min_weight, 0.0, 1.0)
+    trim = _validate.boolean("trim", trim)
+    raw_image = as_sensor_image(raw, bayer=bayer, name="raw")
+    dark_image = None if dark is None else as_sensor_image(dark, name="dark")
+    label = raw_image.label()
+    if white is None and grid is None:
+        raise _needs_white(label)
+    if dark_image is not None:
+        _check_same_size(dark_image, raw_image, "dark frame")
+    model = _as_grid(grid, raw_image.shape, label)
+    options = {"kind": kind, "pitch": pitch, "bayer": bayer}
+    choice = None
+    total = 2 + _SLICE_BLOCKS + (1 if model is None else 0)
+    done = 0
+    if white is not None and _is_white_folder(white):
+        yield done, total, "choosing the white image"
+        white_image, model, choice = _white_from_folder(white, raw_image, dark_image, model, bayer, options)
+    else:
+        white_image = None if white is None else as_sensor_image(white, bayer=bayer, name="white")
+        if white_image is not None:
+            _check_same_size(white_image, raw_image, "white image")
+    if model is None:
+        yield done, total, "calibrating the microlens grid"
+        done += 1
+        model = calibrate(white_image, dark_image, **options)
+    yield done, total, "dividing by the white image"
+    done += 1
+    image, valid, scale = divide_by_white(raw_image, white_image, dark_image, min_weight, saturation)
+    count = _view_count(model, n_views, outside)
+    q = np.arange(count) - (count - 1) / 2.0
+    view_on = np.hypot(q[:, None], q[None, :]) <= model.pitch / 2.0
+    from .slicing import Slicer
+
+    slicer = Slicer(image, valid, model, count, view_on, min_weight=min_weight, scale=scale)
+    yield done, total, "finding the lenses any view sees"
+    done += 1
+    window = slicer.window() if trim else (0, slicer.shape[0], 0, slicer.shape[1])
+    if window is None:
+        raise DecodeError(f"{label}: no lens of the grid is lit in the white image; nothing to decode")
+    data, weights = slicer.allocate(window)
+    for block in np.array_split(np.arange(window[0], window[1]), _SLICE_BLOCKS):
+        yield done, total, f"slicing views (lens rows {block[0] if block.size else window[1]}-" \
+                           f"{block[-1] + 1 if block.size else window[1]} of {slicer.shape[0]})"
+        done += 1
+        if block.size:
+            slicer.fill(window, block, data, weights)
+    del image, valid, slicer
+    yield done, total, "done"
+    y0, y1, x0, x1 = window
+    lens_window = [x0, x1, y0, y1] if model.transposed else [y0, y1, x0, x1]
+    meta = {
+        "source": raw_image.label(),
+        "format": f"lenslet {raw_image.format}" + (f", Bayer {raw_image.bayer}" if raw_image.bayer else ""),
+        "grid": model,
+        "view_step_px": 1.0,
+        "lens_window": lens_window,
+        "white": None if white_image is None else white_image.label(),
+        "dark": None if dark_image is None else dark_image.label(),
+    }
+    if choice is not None:
+        meta["white_choice"] = {"path": str(choice.path), **choice.extra}
+    if raw_image.meta:
+        meta["sensor"] = dict(raw_image.meta)
+    return LightField._derived(data, regular_positions(count, count), meta, weights)
+
+
 def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views=None, outside="weight",
-                   min_weight=0.05, trim=True, kind="auto", pitch=None):
+                   min_weight=0.05, trim=True, kind="auto", pitch=None, saturation="auto", progress=None):
     """Decode a lenslet image into a 4-D light field.
 
     Parameters
@@ -189,9 +233,12 @@ def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views
     raw : str, Path, ndarray or SensorImage
         The lenslet capture: ``(H, W)`` grey or Bayer mosaic, or
         ``(H, W, 3)`` colour. Arrays are read, never modified.
-    white : str, Path, ndarray or SensorImage, optional
+    white : str, Path, ndarray, SensorImage or WhiteImageFolder, optional
         White image of the same size: devignetting, validity weights and
-        (without ``grid``) calibration. Needed unless ``grid`` is given.
+        (without ``grid``) calibration; or a folder of white images, from
+        which the one nearest the capture's zoom and focus is chosen
+        (:mod:`~napari_lfalias.decoders.white_images`). Needed unless
+        ``grid`` is given.
     dark : str, Path, ndarray or SensorImage, optional
         Dark frame subtracted from ``raw`` and ``white``.
     grid : GridModel or str, optional
@@ -215,6 +262,13 @@ def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views
         borders, lenses off the sensor).
     kind, pitch
         Passed to :func:`calibrate` when ``grid`` is not given.
+    saturation : "auto", float or False
+        The sensor's clipping level in raw units: clipped light is set to
+        one ceiling in every view and its weight halved (see
+        :mod:`~napari_lfalias.decoders.devignetting`); ``"auto"`` finds a
+        clipping plateau at the capture's maximum; ``False`` turns it off.
+    progress : callable, optional
+        Called with ``(done, total, step)`` before each step.
 
     Returns
     -------
@@ -223,13 +277,18 @@ def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views
         ``weights`` the validity of every sample, ``positions`` as in the
         module notes; ``meta["grid"]`` is the GridModel, ``meta["view_step_px"]``
         the pixels between views, ``meta["lens_window"]`` the rows and
-        columns of the grid's output kept by ``trim``.
+        columns of the grid's output kept by ``trim``, ``meta["white_choice"]``
+        the white image chosen from a folder and its settings.
 
     Raises
     ------
     DecodeError
         Unreadable files, or frames of different sizes (the message names
-        the file).
+        the file); :class:`~napari_lfalias.errors.DarkFrameError` for a dark
+        frame that leaves nothing of the capture;
+        :class:`~napari_lfalias.errors.WhiteImageError` for a colour white
+        image of a grey capture, NaN pixels, or a folder with no white
+        image for the capture's camera.
     CalibrationError
         No lens grid in the white image, or a grid fitted on another size.
 
@@ -241,52 +300,27 @@ def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views
     >>> lf.grid_shape, lf.meta["grid"].kind
     ((9, 9), 'rectangular')
     """
-    _validate.one_of("outside", outside, ("weight", "crop"))
-    min_weight = _validate.in_open_interval("min_weight", min_weight, 0.0, 1.0)
-    raw_image = as_sensor_image(raw, bayer=bayer, name="raw")
-    white_image = None if white is None else as_sensor_image(white, bayer=bayer, name="white")
-    dark_image = None if dark is None else as_sensor_image(dark, name="dark")
-    label = raw_image.label()
-    if white_image is None and grid is None:
-        raise _needs_white(label)
-    for image, what in ((white_image, "white image"), (dark_image, "dark frame")):
-        if image is not None:
-            _check_same_size(image, raw_image, what)
-    model = _as_grid(grid, raw_image.shape, label)
-    if model is None:
-        model = calibrate(white_image, dark_image, kind=kind, pitch=pitch)
-    image, valid = devignette(raw_image, white_image, dark_image, min_weight)
-    if model.transposed:
-        image, valid = np.ascontiguousarray(image.transpose(1, 0, 2)), np.ascontiguousarray(valid.T)
-    count = _view_count(model, n_views, outside)
-    q = np.arange(count) - (count - 1) / 2.0
-    view_on = np.hypot(q[:, None], q[None, :]) <= model.pitch / 2.0
-    from .slicing import slice_views
+    steps = decode_steps(raw, white, dark, grid, bayer=bayer, n_views=n_views, outside=outside,
+                         min_weight=min_weight, trim=trim, kind=kind, pitch=pitch, saturation=saturation)
+    return _run(steps, progress)
 
-    data, weights = slice_views(image, valid, model, count, view_on)
-    if model.transposed:
-        data, weights = data.transpose(1, 0, 3, 2, 4), weights.transpose(1, 0, 3, 2)
-    window = (0, data.shape[2], 0, data.shape[3])
-    if trim:
-        window = _trim_window(weights, min_weight)
-        if window is None:
-            raise DecodeError(f"{label}: no lens of the grid is lit in the white image; nothing to decode")
-        y0, y1, x0, x1 = window
-        data, weights = data[:, :, y0:y1, x0:x1], weights[:, :, y0:y1, x0:x1]
-    weights = np.where(weights >= min_weight, weights, np.float32(0.0))
-    data = np.ascontiguousarray(np.where(weights[..., None] > 0, data, np.float32(0.0)))
-    meta = {
-        "source": raw_image.label(),
-        "format": f"lenslet {raw_image.format}" + (f", Bayer {raw_image.bayer}" if raw_image.bayer else ""),
-        "grid": model,
-        "view_step_px": 1.0,
-        "lens_window": list(window),
-        "white": None if white_image is None else white_image.label(),
-        "dark": None if dark_image is None else dark_image.label(),
-    }
-    if raw_image.meta:
-        meta["sensor"] = dict(raw_image.meta)
-    return LightField(data, regular_positions(count, count), meta, weights=np.ascontiguousarray(weights))
+
+def load_lenslet_steps(path, white=None, dark=None, grid=None, **options):
+    """:func:`load_lenslet` as a generator of ``(done, total, step)`` (see :func:`decode_steps`)."""
+    unknown = sorted(set(options) - set(_OPTIONS) | ({"progress"} & set(options)))
+    if unknown:
+        raise ParameterError(
+            f"unknown option(s) for a lenslet capture: {', '.join(unknown)}; accepted: {', '.join(_OPTIONS)}"
+        )
+    bayer = options.pop("bayer", None)
+    yield 0, 1, "reading the capture"
+    raw = read_sensor(path, bayer=bayer)  # first: a file that is no capture says so, white or not
+    if white is None and grid is None:
+        raise _needs_white(path)
+    if white is not None and not _is_white_folder(white):
+        white = as_sensor_image(white, bayer=bayer, name="white")
+    dark_image = None if dark is None else as_sensor_image(dark, name="dark")
+    return (yield from decode_steps(raw, white, dark_image, grid, bayer=bayer, **options))
 
 
 def load_lenslet(path, white=None, dark=None, grid=None, **options):
@@ -296,13 +330,15 @@ def load_lenslet(path, white=None, dark=None, grid=None, **options):
     ----------
     path : str or Path
         The raw lenslet image: TIFF, PNG, camera raw / DNG, Lytro LFR/LFP/RAW.
-    white, dark : str, Path, ndarray or SensorImage, optional
-        White image and dark frame (see :func:`decode_lenslet`).
+    white : str, Path, ndarray or SensorImage, optional
+        White image, or a folder of white images (see :func:`decode_lenslet`).
+    dark : str, Path, ndarray or SensorImage, optional
+        Dark frame.
     grid : GridModel, str or Path, optional
         A saved grid model (object, JSON text or ``.json`` file).
     **options
         ``bayer``, ``n_views``, ``outside``, ``min_weight``, ``trim``,
-        ``kind``, ``pitch`` of :func:`decode_lenslet`.
+        ``kind``, ``pitch``, ``saturation``, ``progress`` of :func:`decode_lenslet`.
 
     Returns
     -------
@@ -323,16 +359,5 @@ def load_lenslet(path, white=None, dark=None, grid=None, **options):
     >>> lf.meta["format"]
     'lenslet TIFF'
     """
-    unknown = sorted(set(options) - set(_OPTIONS))
-    if unknown:
-        raise ParameterError(
-            f"unknown option(s) for a lenslet capture: {', '.join(unknown)}; accepted: {', '.join(_OPTIONS)}"
-        )
-    bayer = options.pop("bayer", None)
-    raw = read_sensor(path, bayer=bayer)
-    if white is None and grid is None:
-        raise _needs_white(path)
-    white_image = None if white is None else as_sensor_image(white, bayer=bayer, name="white")
-    dark_image = None if dark is None else as_sensor_image(dark, name="dark")
-    return decode_lenslet(raw, white_image, dark_image, grid, **options)
-
+    progress = options.pop("progress", None)
+    return _run(load_lenslet_steps(path, white, dark, grid, **options), progress)

@@ -15,7 +15,9 @@ metadata file beside it (read by imageio).
 
 The metadata give the black and white levels per Bayer channel, the Bayer
 layout (``mosaic.upperLeftPixel``) and, when present, the lens and pixel
-pitch and the microlens rotation: they land in ``SensorImage.meta``.
+pitch, the microlens rotation, and the camera's zoom and focus steps and
+serial number (which pick a white image from a folder of them, see
+:mod:`.white_images`): they land in ``SensorImage.meta``.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import numpy as np
 
 from ..errors import DecodeError
 
-__all__ = ["read_lytro", "scan_container", "LytroSection"]
+__all__ = ["read_lytro", "scan_container", "LytroSection", "camera_settings", "frame_metadata"]
 
 _FILE_MAGIC = b"\x89LFP"
 _SECTION_MAGIC = (b"\x89LFM", b"\x89LFC")
@@ -173,9 +175,51 @@ def _dig(meta, *keys):
     return meta
 
 
+def frame_metadata(meta):
+    """The frame's ``(metadata, privateMetadata)`` of a Lytro metadata dict, in any of its layouts.
+
+    imageio gives a container's as ``{"metadata": ..., "privateMetadata": ...}``;
+    the camera's white-image files (``MOD_0000.TXT``) and Lytro's ``.json``
+    beside a ``.raw`` nest them in ``master.picture.frameArray[0].frame``.
+    """
+    if not isinstance(meta, dict):
+        return {}, {}
+    frames = _dig(meta, "master", "picture", "frameArray")
+    if isinstance(frames, list) and frames and isinstance(frames[0], dict):
+        frame = frames[0].get("frame") or {}
+        return frame.get("metadata") or {}, frame.get("privateMetadata") or {}
+    return meta.get("metadata", meta) or {}, meta.get("privateMetadata") or {}
+
+
+def camera_settings(meta):
+    """Zoom and focus steps, serial number, model and exposure from Lytro metadata (missing ones left out).
+
+    Examples
+    --------
+    >>> camera_settings({"metadata": {"devices": {"lens": {"zoomStep": 12, "focusStep": -340}}},
+    ...                  "privateMetadata": {"camera": {"serialNumber": "B5143"}}})
+    {'zoom_step': 12.0, 'focus_step': -340.0, 'serial': 'B5143'}
+    """
+    frame, private = frame_metadata(meta)
+    found = {}
+    for key, value in (("zoom_step", _dig(frame, "devices", "lens", "zoomStep")),
+                       ("focus_step", _dig(frame, "devices", "lens", "focusStep")),
+                       ("exposure_s", _dig(frame, "devices", "shutter", "frameExposureDuration"))):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            found[key] = float(value)
+    serial = _dig(private, "camera", "serialNumber")
+    if serial is not None:
+        found["serial"] = str(serial)
+    model = _dig(frame, "camera", "model")
+    if model is not None:
+        found["camera_model"] = str(model)
+    return found
+
+
 def _facts(meta, camera):
-    """Layout, level tiles and optics from the Lytro metadata (missing entries get defaults)."""
-    meta = meta.get("metadata", meta) if isinstance(meta, dict) else {}
+    """Layout, level tiles, optics and camera settings from the Lytro metadata (missing entries get defaults)."""
+    settings = camera_settings(meta)
+    meta = frame_metadata(meta)[0]
     raw_details = _dig(meta, "image", "rawDetails") or {}
     upper_left = str(_dig(raw_details, "mosaic", "upperLeftPixel") or "").lower()
     layout = _UPPER_LEFT.get(upper_left, _DEFAULT_LAYOUT[camera["camera"]])
@@ -192,6 +236,7 @@ def _facts(meta, camera):
             facts[key] = float(value)
     if "lens_pitch_m" in facts and facts.get("pixel_pitch_m"):
         facts["lens_pitch_px"] = facts["lens_pitch_m"] / facts["pixel_pitch_m"]
+    facts.update(settings)
     return layout, black, white, full, facts
 
 

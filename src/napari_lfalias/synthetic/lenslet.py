@@ -16,10 +16,13 @@ centre):
   inside it, and a radial vignetting of the main lens; optionally a dark
   strip on the left edge;
 - adds a dark level with a fixed pattern, Gaussian noise, and samples the
-  colour through a Bayer filter (or takes Rec. 709 luminance).
+  colour through a Bayer filter (or takes Rec. 709 luminance); optionally
+  clips the capture at a saturation level.
 
-The decoder's output pixel is ``row_step`` sensor pixels wide (the lens
-pitch on a rectangular grid); ``scale`` scene pixels per output pixel
+The sensor is rendered in bands of rows, so Illum-size captures (7728 x
+5368) fit in memory. The decoder's output pixel is ``row_step`` sensor
+pixels high and ``column_step`` wide (the lens pitch on a rectangular
+grid, ``row_step`` on a hexagonal one); ``scale`` scene pixels per output pixel
 sets how much texture each lens sees. :meth:`LensletCapture.reference`
 evaluates the scene exactly where a decoded light field says its samples
 lie, which is the ground truth of a round trip.
@@ -143,6 +146,8 @@ class LensletCapture:
         Scene pixels per decoded output pixel.
     layers_disparity : dict of str to float
         Disparity of every scene layer in decoded pixels per view step.
+    exposure : float
+        Gain on the scene's radiance (the reference includes it).
     """
 
     raw: np.ndarray
@@ -154,8 +159,11 @@ class LensletCapture:
     scale: float = 0.5
     scene_origin: tuple = (0.0, 0.0)
     layers_disparity: dict = field(default_factory=dict)
+    exposure: float = 1.0
 
     def _radiance(self):
+        if self.scene is None:
+            raise ParameterError("a capture of a uniform white scene (scene=None) has no scene to compare with")
         if getattr(self, "_radiance_cache", None) is None:
             self._radiance_cache = SceneRadiance(self.scene)
         return self._radiance_cache
@@ -166,7 +174,7 @@ class LensletCapture:
         e_y, e_x = grid.axes
         rel = sensor_points - np.asarray(grid.offset)
         rows = rel @ e_y / grid.row_step
-        along = rel @ e_x / grid.row_step  # output pixels along the row
+        along = rel @ e_x / grid.column_step  # output pixels along the row
         cy, cx = self.scene_origin
         return rows * self.scale + cy, along * self.scale + cx
 
@@ -187,10 +195,8 @@ class LensletCapture:
             raise ParameterError("reference() needs grids in the image's own orientation (transposed=False)")
         y0, y1, x0, x1 = lf.meta.get("lens_window") or (0, lf.image_shape[0], 0, lf.image_shape[1])
         n_y, n_x = y1 - y0, x1 - x0
-        e_y, e_x = model.axes
         rows, cols = np.meshgrid(np.arange(y0, y1), np.arange(x0, x1), indexing="ij")
-        centres = np.asarray(model.offset) + (rows[..., None] * model.row_step) * e_y \
-            + (cols[..., None] * model.row_step) * e_x
+        centres = model.pixel_centres(rows, cols)
         sy, sx = self._scene_points(centres.reshape(-1, 2))
         radiance = self._radiance()
         positions = np.asarray(lf.positions) * float(lf.meta.get("view_step_px", 1.0))
@@ -200,7 +206,7 @@ class LensletCapture:
         for u in range(n_u):
             for v in range(n_v):
                 qy, qx = positions[u, v]
-                values = radiance(sy, sx, np.full(sy.shape, qy), np.full(sy.shape, qx))
+                values = self.exposure * radiance(sy, sx, np.full(sy.shape, qy), np.full(sy.shape, qx))
                 values = values @ REC709[:, None] if grey else values
                 view = values.reshape(n_y, n_x, -1)
                 data[u, v] = view
@@ -248,14 +254,14 @@ def _lens_of_pixels(grid, points):
     return best_row, best_col, best_q
 
 
-def _disc(radius, rim):
-    """White level under a microlens: soft disc of radius ``rim`` with a mild inner fall-off."""
-    edge = np.clip((rim + 0.75 - radius) / 1.5, 0.0, 1.0)
-    soft = 0.5 - 0.5 * np.cos(np.pi * edge)
+def _disc(radius, rim, edge=1.5):
+    """White level under a microlens: disc of radius ``rim`` with a soft edge ``edge`` px wide, mild inner fall-off."""
+    edge_frac = np.clip((rim + 0.5 * edge - radius) / edge, 0.0, 1.0)
+    soft = 0.5 - 0.5 * np.cos(np.pi * edge_frac)
     return soft * (1.0 - 0.15 * np.clip(radius / rim, 0.0, 1.0) ** 2)
 
 
-def _true_grid(shape, pitch, rotation, kind, offset):
+def _true_grid(shape, pitch, rotation, kind, offset, row_spacing=None, hex_shift_row=1):
     from ..decoders.grid import GridModel
 
     kind = _validate.one_of("kind", kind, ("rectangular", "hexagonal"))
@@ -267,24 +273,84 @@ def _true_grid(shape, pitch, rotation, kind, offset):
     rotation = _validate.finite_float("rotation", rotation)
     if abs(rotation) > 10:
         raise ParameterError(f"rotation must be within +-10 degrees, got {rotation}")
-    row_step = pitch * (math.sqrt(3) / 2 if kind == "hexagonal" else 1.0)
+    hex_shift_row = _validate.one_of("hex_shift_row", hex_shift_row, (0, 1))
+    regular = pitch * (math.sqrt(3) / 2 if kind == "hexagonal" else 1.0)
+    row_step = regular if row_spacing is None else _validate.finite_float("row_spacing", row_spacing)
+    if not 0.8 * regular <= row_step <= 1.25 * regular:
+        raise ParameterError(f"row_spacing must be within 0.8 to 1.25 times {regular:g} px, got {row_step}")
     n_rows = int(math.ceil(shape[0] / row_step)) + 6
     n_cols = int(math.ceil(shape[1] / pitch)) + 6
     if offset is None:
         offset = (0.37 * row_step - 2 * row_step, 0.61 * pitch - 2 * pitch)
-    return GridModel(kind, pitch, rotation, tuple(offset), n_rows, n_cols, tuple(shape), 1)
+    return GridModel(kind, pitch, rotation, tuple(offset), n_rows, n_cols, tuple(shape), hex_shift_row,
+                     row_spacing=row_step)
+
+
+def _bands(height, width):
+    """Row ranges covering the sensor in bands of about ``_BATCH * 16`` pixels."""
+    rows = max(1, (_BATCH * 16) // width)
+    return [(r0, min(r0 + rows, height)) for r0 in range(0, height, rows)]
+
+
+def _band_pixels(r0, r1, width):
+    return np.stack(np.meshgrid(np.arange(r0, r1, dtype=np.float64), np.arange(width, dtype=np.float64),
+                                indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def _decoded_position(grid, rows, cols):
+    """Decoded-pixel (y, x) of lenses ``(rows, cols)``: the row, and the position along it in decoded pixels."""
+    shifts = (np.mod(rows, 2) == grid.hex_shift_row) * 0.5 if grid.is_hexagonal else 0.0
+    return rows, (cols + shifts) * grid.pitch / grid.column_step
+
+
+def _white_level(grid, pixels, q, shape, fill, edge, vignetting, dark_border):
+    """White level of sensor pixels at lens offsets ``q``: soft disc, radial vignetting, dark strip."""
+    height, width = shape
+    level = _disc(np.hypot(*q), fill * grid.pitch / 2.0, edge)
+    corner = np.hypot((pixels[:, 0] - (height - 1) / 2) / (height / 2), (pixels[:, 1] - (width - 1) / 2) / (width / 2))
+    level = level * (1.0 - vignetting * (corner / math.sqrt(2.0)) ** 2)
+    if dark_border:
+        level = level * (pixels[:, 1] >= dark_border)
+    return 0.85 * level
+
+
+def _scene_origin(scene, grid, bands, width, scale):
+    """Scene (y, x) of decoded pixel (0, 0) that centres the scene on the decoded extent; checks it fits."""
+    low, high = np.full(2, np.inf), np.full(2, -np.inf)
+    for r0, r1 in bands:
+        rows, cols, _ = _lens_of_pixels(grid, _band_pixels(r0, r1, width))
+        out = np.stack(_decoded_position(grid, rows, cols))
+        low, high = np.minimum(low, out.min(axis=1)), np.maximum(high, out.max(axis=1))
+    centre = (low + high) / 2.0
+    origin = (scene.size / 2.0 - centre[0] * scale, scene.size / 2.0 - centre[1] * scale)
+    reach = max(abs(d) for d in scene.layers_disparity.values()) * grid.pitch / 2.0
+    first, last = low * scale + origin, high * scale + origin
+    if first.min() - reach < 0 or last.max() + reach >= scene.size:
+        need = int(math.ceil(max(high - low) * scale + 2 * reach + 2))
+        raise ParameterError(f"the scene is too small for this sensor and scale: size must be at least {need}")
+    return origin
+
+
+class _Streams:
+    """Independent noise streams (dark pattern, capture noise, white noise), drawn in raster order."""
+
+    def __init__(self, seed):
+        self.dark, self.raw, self.white = (np.random.default_rng([int(seed), k]) for k in range(3))
 
 
 def render_lenslet(scene, shape=(256, 256), pitch=10.3, rotation=0.25, kind="rectangular", *, scale=0.5,
                    vignetting=0.35, fill=0.96, bayer=None, noise=0.0, dark_level=0.02, dark_border=0,
-                   offset=None, seed=0):
+                   offset=None, seed=0, edge=1.5, row_spacing=None, hex_shift_row=1, exposure=1.0,
+                   saturation=None):
     """Render the lenslet image and white image of a synthetic scene.
 
     Parameters
     ----------
-    scene : SyntheticScene
+    scene : SyntheticScene or None
         The scene (its ``size`` must cover the sensor's lenses times
-        ``scale``; a ParameterError says how large).
+        ``scale``; a ParameterError says how large); ``None``: a uniform
+        white scene, whose capture is a white image (fast: no scene to
+        evaluate; for calibration studies).
     shape : tuple of int
         Sensor ``(height, width)`` in pixels.
     pitch : float
@@ -313,6 +379,18 @@ def render_lenslet(scene, shape=(256, 256), pitch=10.3, rotation=0.25, kind="rec
         Lattice origin ``(y, x)``; default a non-integer position.
     seed : int
         Seed of the noise and of the dark pattern.
+    edge : float
+        Width in pixels over which a microlens disc fades from lit to dark.
+    row_spacing : float, optional
+        Distance between lens rows (default: the regular lattice's).
+    hex_shift_row : {0, 1}
+        Parity of the lens rows shifted by half a pitch (hexagonal).
+    exposure : float
+        Gain on the scene's radiance (above 1/0.85, bright parts pass the
+        white image's level).
+    saturation : float, optional
+        Sensor clipping level: capture values above it (dark level
+        included) are clipped, as a real sensor's full well clips them.
 
     Returns
     -------
@@ -334,48 +412,48 @@ def render_lenslet(scene, shape=(256, 256), pitch=10.3, rotation=0.25, kind="rec
     shape = tuple(_validate.integer_at_least("shape", int(v), 32) for v in shape)
     scale = _validate.positive_float("scale", scale)
     fill = _validate.in_open_interval("fill", fill, 0.2, 1.01)
-    grid = _true_grid(shape, pitch, rotation, kind, offset)
-    from ..decoders.bayer import bayer_pattern, mosaic
+    edge = _validate.positive_float("edge", edge)
+    exposure = _validate.positive_float("exposure", exposure)
+    saturation = None if saturation is None else _validate.positive_float("saturation", saturation)
+    grid = _true_grid(shape, pitch, rotation, kind, offset, row_spacing, hex_shift_row)
+    from ..decoders.bayer import bayer_pattern, channel_index
 
     bayer = bayer_pattern(bayer)
-    rng = np.random.default_rng(seed)
     height, width = shape
-    pixels = np.stack(np.meshgrid(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64),
-                                  indexing="ij"), axis=-1).reshape(-1, 2)
-    rows, cols, (qy, qx) = _lens_of_pixels(grid, pixels)
-    shifts = (np.mod(rows, 2) == grid.hex_shift_row) * 0.5 if grid.is_hexagonal else 0.0
-    out_y = rows
-    out_x = (cols + shifts) * grid.pitch / grid.row_step
-    centre = (np.array([out_y.min() + out_y.max(), out_x.min() + out_x.max()]) / 2.0)
-    origin = (scene.size / 2.0 - centre[0] * scale, scene.size / 2.0 - centre[1] * scale)
-    sy, sx = out_y * scale + origin[0], out_x * scale + origin[1]
-    reach = max(abs(d) for d in scene.layers_disparity.values()) * grid.pitch / 2.0
-    if min(sy.min(), sx.min()) - reach < 0 or max(sy.max(), sx.max()) + reach >= scene.size:
-        need = int(math.ceil(max(np.ptp(sy), np.ptp(sx)) + 2 * reach + 2))
-        raise ParameterError(f"the scene is too small for this sensor and scale: size must be at least {need}")
-    evaluator = SceneRadiance(scene)
-    radiance = evaluator(sy, sx, qy, qx)  # (N, 3)
-    level = _disc(np.hypot(qy, qx), fill * grid.pitch / 2.0)
-    corner = np.hypot((pixels[:, 0] - (height - 1) / 2) / (height / 2), (pixels[:, 1] - (width - 1) / 2) / (width / 2))
-    level = level * (1.0 - vignetting * (corner / math.sqrt(2.0)) ** 2)
-    if dark_border:
-        level = level * (pixels[:, 1] >= dark_border)
-    level = 0.85 * level
-    if bayer is None:
-        signal = (radiance @ REC709.astype(np.float64)) * level
-        white = level
-    else:
-        signal = mosaic((radiance * level[:, None]).reshape(height, width, 3), bayer).ravel()
-        gains = mosaic(np.broadcast_to(np.array([0.8, 1.0, 0.7]), (height, width, 3)), bayer).ravel()
-        signal = signal * gains
-        white = level * gains
-    dark = dark_level * (1.0 + 0.1 * rng.standard_normal(height * width))
-    raw = signal + dark + noise * rng.standard_normal(signal.shape)
-    white = white + dark + 0.25 * noise * rng.standard_normal(white.shape)
-    disparity = {name: d / scale for name, d in scene.layers_disparity.items()}
-    capture = LensletCapture(
-        raw.reshape(shape).astype(np.float32), white.reshape(shape).astype(np.float32),
-        dark.reshape(shape).astype(np.float32), grid, bayer, scene, scale, origin, disparity,
-    )
+    bands = _bands(height, width)
+    origin, evaluator = (0.0, 0.0), None
+    if scene is not None:
+        origin = _scene_origin(scene, grid, bands, width, scale)
+        evaluator = SceneRadiance(scene)
+    gains = np.array([0.8, 1.0, 0.7])
+    streams = _Streams(seed)
+    raw, white, dark = (np.empty(shape, np.float32) for _ in range(3))
+    for r0, r1 in bands:
+        pixels = _band_pixels(r0, r1, width)
+        rows, cols, q = _lens_of_pixels(grid, pixels)
+        out_y, out_x = _decoded_position(grid, rows, cols)
+        if evaluator is None:
+            radiance = np.full((len(pixels), 3), exposure)
+        else:
+            radiance = exposure * evaluator(out_y * scale + origin[0], out_x * scale + origin[1], *q)  # (N, 3)
+        level = _white_level(grid, pixels, q, shape, fill, edge, vignetting, dark_border)
+        if bayer is None:
+            signal = (radiance @ REC709.astype(np.float64)) * level
+            white_level = level
+        else:
+            channel = channel_index(bayer, shape)[r0:r1].ravel()
+            signal = radiance[np.arange(len(channel)), channel] * level * gains[channel]
+            white_level = level * gains[channel]
+        count = len(pixels)
+        dark_band = dark_level * (1.0 + 0.1 * streams.dark.standard_normal(count))
+        raw_band = signal + dark_band + noise * streams.raw.standard_normal(count)
+        if saturation is not None:
+            raw_band = np.minimum(raw_band, saturation)
+        raw[r0:r1] = raw_band.reshape(r1 - r0, width)
+        white[r0:r1] = (white_level + dark_band + 0.25 * noise * streams.white.standard_normal(count)).reshape(
+            r1 - r0, width)
+        dark[r0:r1] = dark_band.reshape(r1 - r0, width)
+    disparity = {} if scene is None else {name: d / scale for name, d in scene.layers_disparity.items()}
+    capture = LensletCapture(raw, white, dark, grid, bayer, scene, scale, origin, disparity, exposure)
     capture._radiance_cache = evaluator
     return capture

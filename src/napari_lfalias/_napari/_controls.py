@@ -15,7 +15,7 @@ PLUGIN_MENU = "Light fields (4-D): view folders, lenslet and Lytro captures"
 
 #: Library and command-line wording -> what a napari user does instead (regular expressions).
 _GUI_WORDS = (
-    (r"pass --overwrite \(overwrite=True\) to replace it|pass --overwrite to replace it",
+    (r"pass --overwrite \(overwrite=True\) to replace it|pass (?:--overwrite|overwrite=True) to replace it",
      "choose another name, or agree to replace it when the save dialog asks"),
     (r"pass white=\.\.\. \(lfalias: --white\), or grid=\.\.\. from an earlier calibration",
      "open it together with its white image (select both and use File > Open Files as Stack...), "
@@ -43,6 +43,8 @@ def in_gui_words(text):
     >>> in_gui_words("max_level: the light field is too small for 9 levels")
     'coarsest level: the light field is too small for 9 levels'
     >>> in_gui_words("out.tif: output exists; pass --overwrite (overwrite=True) to replace it")
+    'out.tif: output exists; choose another name, or agree to replace it when the save dialog asks'
+    >>> in_gui_words("out.tif: output exists; pass overwrite=True to replace it")
     'out.tif: output exists; choose another name, or agree to replace it when the save dialog asks'
     """
     import re

@@ -476,6 +476,14 @@ class AliasingDetector:
         self._disparity = disparity
         self._guide = None
 
+    def use_disparity(self, disparity):
+        """Use ``disparity`` (a ``(Y, X)`` map or a :class:`~napari_lfalias.disparity.DisparityEstimate`)
+        for ``method="depth"`` from now on, instead of estimating it (a worker may estimate it with
+        progress, then hand it over)."""
+        with self._lock:
+            self._disparity = disparity
+            self._guide = None
+
     @property
     def guide(self):
         """The :class:`~napari_lfalias.depth_guided.DepthGuide` of the light field (disparity estimated

@@ -65,7 +65,7 @@ from .errors import ParameterError
 from .lightfield import REC709, LightField
 from .pyramid import _reduce_stack, level_shape
 
-__all__ = ["DisparityEstimate", "estimate_disparity", "disparity_scores"]
+__all__ = ["DisparityEstimate", "estimate_disparity", "iter_estimate_disparity", "disparity_scores"]
 
 #: Weight of the luminance gradients against the luminance in the matching features.
 GRADIENT_WEIGHT = 2.0
@@ -448,7 +448,7 @@ def _tile_slopes(coarse, coarse_level, shape, slopes, margin, tile):
     return needed
 
 
-def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
+def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True, progress=None):
     """Estimate the disparity of every pixel from the light field alone.
 
     Parameters
@@ -467,6 +467,10 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
     fill : bool
         Replace low-confidence disparities by an edge-aware smoothing of
         the confident ones (default). False returns the raw winners.
+    progress : callable, optional
+        Called as ``progress(done, total, step)`` after each stage
+        (:func:`iter_estimate_disparity` gives the same steps as a
+        generator, for a worker that may be stopped between them).
 
     Returns
     -------
@@ -491,6 +495,30 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
     >>> est = estimate_disparity(lf, disparity_range=(-3, 3))
     >>> bool(abs(np.median(est.disparity[16:-16, 16:-16]) - 1.25) < 0.05)
     True
+    """
+    steps = iter_estimate_disparity(lf, disparity_range, radius=radius, fill=fill)
+    while True:
+        try:
+            done, total, step = next(steps)
+        except StopIteration as finished:
+            return finished.value
+        if progress is not None:
+            progress(done, total, step)
+
+
+def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
+    """:func:`estimate_disparity` step by step: yields ``(done, total, step)`` after each stage and returns
+    the :class:`DisparityEstimate` (``StopIteration.value``); closing it between stages stops the work.
+
+    Parameters and errors are those of :func:`estimate_disparity`, checked
+    when the generator is first advanced.
+
+    Examples
+    --------
+    >>> from napari_lfalias.synthetic import textured_plane
+    >>> steps = iter_estimate_disparity(textured_plane(n_views=3, size=32).lightfield)
+    >>> [step for _, _, step in steps]
+    ['inputs', 'coarse sweep', 'sweep', 'aggregation', 'fill']
     """
     import time
 
@@ -525,6 +553,7 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
     slopes = _slope_grid(low, high, step)
     level = _coarse_level(shape)
     seconds["inputs"] = time.perf_counter() - clock
+    yield (1, 5, "inputs")
 
     clock = time.perf_counter()
     if level > 0:
@@ -548,14 +577,17 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
     else:
         needed = _all_tiles(len(slopes), shape, TILE)
     seconds["coarse"] = time.perf_counter() - clock
+    yield (2, 5, "coarse sweep")
 
     clock = time.perf_counter()
     cost = _sweep(_features(lum), valid, positions, slopes, needed, shape, TILE)
     seconds["sweep"] = time.perf_counter() - clock
+    yield (3, 5, "sweep")
     clock = time.perf_counter()
     aggregated = _aggregate(_relative_cost(cost), needed, _GuidedFilter(guide, radius), radius)
     disparity, confidence = _winner(aggregated, slopes, step)
     seconds["aggregate"] = time.perf_counter() - clock
+    yield (4, 5, "aggregation")
 
     clock = time.perf_counter()
     if fill:
@@ -563,9 +595,12 @@ def estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True):
         keep = confidence ** 2
         disparity = (keep * disparity + (1 - keep) * smooth).astype(np.float32)
     seconds["fill"] = time.perf_counter() - clock
+    yield (5, 5, "fill")
     params = {"radius": radius, "step": step, "coarse_level": level, "n_slopes": len(slopes),
               "evaluated_share": float(needed.mean()), "seconds": seconds}
     return DisparityEstimate(disparity, np.clip(confidence, 0, 1).astype(np.float32), (low, high), params)
+
+
 
 
 def disparity_scores(disparity, truth, border=15):

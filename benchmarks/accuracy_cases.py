@@ -9,12 +9,14 @@ disparity. Cases are split:
 - ``"real"``: real arrays by the sub-grid protocol (holdout too).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
-rendered exactly; the reference integrates the continuous aperture with
-the same bilinear interpolation as the refocus, so only the angular
-sampling differs. Camera effects (:func:`napari_lfalias.synthetic.camera.capture`)
-are applied to the views the methods see, never to the reference, and the
-truth of aliasing is judged on the ideal views (``Case.ideal``): sensor
-noise, clipping and demosaicing errors are not angular aliasing.
+rendered exactly; the reference integrates the continuous aperture
+exactly (every aperture sample evaluated where it lands, no
+interpolation). The truth of aliasing compares it with the same exact
+evaluation at the sparse views' positions only (the midpoint rule of the
+same integral), so only the angular sampling differs: interpolation blur,
+sensor noise, clipping and demosaicing errors are not angular aliasing.
+Camera effects (:func:`napari_lfalias.synthetic.camera.capture`) are
+applied to the views the methods see, never to the reference.
 
 Real: HCI antinous (9x9 views) by the sub-grid protocol: a sparse sub-grid
 that spans the same aperture (rows/columns 1, 4, 7; or 0, 2, 4, 6, 8),
@@ -48,17 +50,24 @@ class Case:
     reference: Callable  # slope -> (Y, X, C) reference image
     disparity: np.ndarray | None = None
     notes: str = ""
-    ideal: object = None  # the views without camera effects: the truth of aliasing is judged on them
+    comb: Callable | None = None  # slope -> the sparse views' refocus without camera or interpolation error
     extra: dict = field(default_factory=dict)
+
+    def truth(self, slope, naive):
+        """The aliased pixels at ``slope``: where the sparse refocus differs perceptibly from the reference."""
+        from napari_lfalias import metrics
+
+        sparse = naive if self.comb is None else self.comb(slope)
+        return metrics.aliased_pixels(sparse, self.reference(slope))
 
 
 def _synthetic(name, split, scene, slopes, notes="", **camera):
     """A case from a synthetic scene, optionally seen through a camera (``capture`` options)."""
-    ideal = scene.lightfield
-    lf = capture(ideal, **camera) if camera else ideal
+    lf = capture(scene.lightfield, **camera) if camera else scene.lightfield
     lf = lfa.LightField(lf.data, lf.positions, {"source": name}, weights=lf.weights)  # no ground truth in meta
-    return Case(name, split, lf, list(slopes), lambda s: scene.reference(s, interpolation="bilinear"),
-                scene.disparity, notes, ideal=ideal)
+    return Case(name, split, lf, list(slopes), lambda s: scene.reference(s, interpolation="exact"),
+                scene.disparity, notes,
+                comb=lambda s: scene.reference(s, samples_per_view=1, interpolation="exact"))
 
 
 def synthetic_cases(size=256):

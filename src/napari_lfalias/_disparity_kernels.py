@@ -79,9 +79,10 @@ def _add_view(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi,
 
 @njit(cache=True, inline="always")
 def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, ty0, ref, ref_count,
-                groups, acc, cnt):
+                groups, acc, cnt, tolerance, within):
     """Squared feature differences of view ``i``'s samples to ``ref``, added to the groups ``groups`` of
-    ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns ``x_lo .. x_hi``."""
+    ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns ``x_lo .. x_hi``.
+    With ``within``, 1 where the difference is at most ``tolerance[y, x]`` (else 0) is added instead."""
     n_feat = features.shape[1]
     a = np.float32((1.0 - fy) * (1.0 - fx))
     b = np.float32((1.0 - fy) * fx)
@@ -111,6 +112,10 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
             for x in range(width):
                 diff = a * row0[x] + b * row0[x + step_x] + c * row1[x] + d * row1[x + step_x] - rk[x]
                 err[x] += diff * diff
+        if within:
+            tol = tolerance[y, x_lo:x_hi]
+            for x in range(width):
+                err[x] = np.float32(1.0) if err[x] <= tol[x] else np.float32(0.0)
         for g in groups:
             acc_g = acc[g, r, x_lo - x0:x_hi - x0]
             cnt_g = cnt[g, r, x_lo - x0:x_hi - x0]
@@ -121,7 +126,7 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
 
 @njit(cache=True, parallel=True, fastmath=True)
 def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
-                out):
+                tolerance, within, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
     Tile-major: a tile's views are read into the cache once and all its
@@ -148,6 +153,10 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         ``(y0, y1, x0, x1)`` of every tile.
     first : (T + 1,) int64, order : (S,) int64
         Tile ``t`` needs the slopes ``order[first[t]:first[t + 1]]``.
+    tolerance : (Y, X) float32, within : bool
+        With ``within``, ``out`` is instead the share (by weight) of all
+        the views whose difference to the reference is at most
+        ``tolerance`` at the pixel (the views that agree with the centre).
     out : (m, Y, X) float32
         Smallest group's weighted mean of the squared feature differences
         to the (weighted) reference; left as it is where a tile does not
@@ -192,7 +201,13 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                 if yb <= ya or xb <= xa:
                     continue
                 _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
-                            ref_count, view_groups[i], acc, cnt)
+                            ref_count, view_groups[i], acc, cnt, tolerance, within)
+            if within:
+                for r in range(height):
+                    for x in range(width):
+                        c0 = cnt[0, r, x]
+                        out[j, y0 + r, x0 + x] = acc[0, r, x] / c0 if c0 > 0.0 else np.float32(0.0)
+                continue
             for r in range(height):
                 for x in range(width):
                     best = np.inf

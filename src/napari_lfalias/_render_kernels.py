@@ -124,11 +124,24 @@ def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, o
 
 
 @njit(cache=True)
-def _composite_view(values, weights, bins, confidence, order, taps, num, den, blurred, trust):
-    """Composite one view's bins front to back into the accumulators (one thread)."""
+def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
+                    trust):
+    """Composite one view's bins front to back into the accumulators (one thread).
+
+    The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
+    (those clearly nearer); bins of about the same depth, parts of one
+    surface, add up instead of hiding each other. What no bin covers of the
+    view's cell (a surface this view does not see behind an occluder's
+    blurred edge) is the in-focus surface the other views see there,
+    ``fill``, where ``has_fill``. Layers hold unit coverage; the view's
+    cell at a pixel counts by the weight of the view's sample there.
+    """
     n_rows, n_cols, n_ch = values.shape
-    transmit = np.ones((n_rows, n_cols), np.float32)
-    for k in order:
+    n_order = order.shape[0]
+    seen = np.ones((n_order + 1, n_rows, n_cols), np.float32)  # seen[o + 1]: through bins order[:o + 1]
+    for o in range(n_order):
+        k = order[o]
+        seen[o + 1] = seen[o]
         y_lo, y_hi, x_lo, x_hi = n_rows, -1, n_cols, -1
         for y in range(n_rows):
             for x in range(n_cols):
@@ -148,25 +161,26 @@ def _composite_view(values, weights, bins, confidence, order, taps, num, den, bl
         layer = np.zeros((y1 - y0, x1 - x0, n_ch + 2), np.float32)
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
-                if bins[y, x] == k:
-                    w = weights[y, x]
+                if bins[y, x] == k and weights[y, x] > 0.0:
                     for c in range(n_ch):
-                        layer[y - y0, x - x0, c] = values[y, x, c] * w
-                    layer[y - y0, x - x0, n_ch] = w
-                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x] * w
+                        layer[y - y0, x - x0, c] = values[y, x, c]
+                    layer[y - y0, x - x0, n_ch] = 1.0
+                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
         if blur:
             summed = np.empty_like(layer)
             box_image(layer, int(ny), fy, int(nx), fx, summed)
             area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
             layer = summed / area
+        through = seen[occluders[o] + 1]
         for y in range(y0, y1):
             for x in range(x0, x1):
-                t = transmit[y, x]
-                if t <= 0.0:
-                    continue
                 cell = layer[y - y0, x - x0]
                 cover = cell[n_ch]
                 if cover <= 0.0:
+                    continue
+                seen[o + 1, y, x] *= 1.0 - min(cover, 1.0)
+                t = through[y, x] * weights[y, x]  # the view's cell counts by its sample's weight
+                if t <= 0.0:
                     continue
                 for c in range(n_ch):
                     num[y, x, c] += t * cell[c]
@@ -174,20 +188,31 @@ def _composite_view(values, weights, bins, confidence, order, taps, num, den, bl
                 if blur:
                     blurred[y, x] += t * cover
                 trust[y, x] += t * cell[n_ch + 1]
-                transmit[y, x] = t * (1.0 - min(cover, 1.0))
+    last = seen[n_order]
+    for y in range(n_rows):
+        for x in range(n_cols):
+            t = last[y, x] * weights[y, x]
+            if t > 0.0 and has_fill[y, x]:
+                for c in range(n_ch):
+                    num[y, x, c] += t * fill[y, x, c]
+                den[y, x] += t
+                trust[y, x] += t
 
 
 @njit(cache=True, parallel=True)
-def composite_views(values, weights, bins, confidence, order, taps, n_chunks, num, den, blurred, trust):
+def composite_views(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, n_chunks, num, den,
+                    blurred, trust):
     """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
     the coverage of blurred bins ``blurred`` and the confidence-weighted coverage ``trust``
     (each ``(n_chunks, Y, X)``), one chunk of views per thread.
 
     ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
-    :func:`napari_lfalias.baselines._box_taps`); ``order``: bins front to back.
+    :func:`napari_lfalias.baselines._box_taps`); ``order``: bins front to back; ``occluders``: for each
+    position in ``order``, the last position whose bins hide it (-1: none); ``fill (Y, X, C)`` and
+    ``has_fill (Y, X)``: the in-focus surface behind occluders' edges (see :func:`_composite_view`).
     """
     n = values.shape[0]
     for chunk in prange(n_chunks):
         for i in range(chunk, n, n_chunks):
-            _composite_view(values[i], weights[i], bins[i], confidence[i], order, taps,
+            _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
                             num[chunk], den[chunk], blurred[chunk], trust[chunk])

@@ -102,6 +102,7 @@ class DepthGuide:
         self._slope = None
         self._rendering = None
         self._moments = None
+        self._focus_test = None
 
     @property
     def estimate(self):
@@ -146,9 +147,22 @@ class DepthGuide:
         self._keep(slope)
         if self._rendering is None:
             disparity, confidence = self.estimate
+            # the surfaces the views show in focus are in focus, whatever the estimate says
+            in_focus = self.focus_test(slope)
+            disparity = np.where(in_focus, np.float32(slope), disparity)
+            confidence = np.where(in_focus, np.float32(1), confidence)
             self._rendering = render_dense_aperture(self.lf, slope, disparity, confidence,
                                                     larger_first=self.larger_first)
         return self._rendering
+
+    @property
+    def focus_test(self):
+        """The :class:`~napari_lfalias.disparity.FocusTest` of the light field (made on first use)."""
+        if self._focus_test is None:
+            from .disparity import FocusTest
+
+            self._focus_test = FocusTest(self.lf)
+        return self._focus_test
 
     def angular_cv(self, slope):
         """The angular coefficient of variation of the views' luminance at ``slope``, ``(Y, X)``."""

@@ -735,7 +735,8 @@ class AliasingDetector:
         score = np.where(evaluated, score, np.float32(0)).astype(np.float32)
         ones = np.ones(shape, np.float32)
         params = {"method": "depth", "gamma": None, "n_patterns": None, "seed": None}
-        return Detection(score, score > np.float32(threshold), ones, evaluated, threshold, "cv", slope, 0, params)
+        mask = score > np.float32(threshold)
+        return Detection(score, mask, ones, evaluated, threshold, "cv", slope, 0, params)
 
     # -- the public entry point ----------------------------------------------------------
     @_one_at_a_time

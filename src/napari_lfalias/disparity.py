@@ -65,7 +65,7 @@ from .errors import ParameterError
 from .lightfield import REC709, LightField
 from .pyramid import _reduce_stack, level_shape
 
-__all__ = ["DisparityEstimate", "estimate_disparity", "iter_estimate_disparity", "disparity_scores"]
+__all__ = ["DisparityEstimate", "estimate_disparity", "iter_estimate_disparity", "disparity_scores", "FocusTest"]
 
 #: Weight of the luminance gradients against the luminance in the matching features.
 GRADIENT_WEIGHT = 2.0
@@ -84,6 +84,17 @@ MIN_COARSE_SIZE = 96
 MAX_COARSE_LEVEL = 3
 #: Coarse pixels at least this confident set the slope range of the full-resolution sweep.
 COARSE_SURE = 0.3
+#: A view agrees with the centre of the aperture where its squared feature difference is at most this
+#: share of the local texture energy (:class:`FocusTest`) ...
+IN_FOCUS_COST = 0.1
+#: ... and a slope brings a pixel into focus where at least this share of the views (besides the
+#: central ones the comparison is made with) agree.
+IN_FOCUS_SHARE = 0.4
+#: Floor of the texture energy a view's difference is compared with (features normalised to a bright
+#: level of 1) ...
+TEXTURE_FLOOR = 1e-5
+#: ... and the energy below which a patch is too flat to tell whether it is in focus.
+TEXTURE_MIN = 1e-4
 #: Regularisation of the guided filter (guide normalised to [0, 1]).
 GUIDE_EPS = 1e-4
 
@@ -201,16 +212,19 @@ def _all_tiles(n_slopes, shape, tile):
     return np.ones((n_slopes, -(-shape[0] // tile[0]), -(-shape[1] // tile[1])), bool)
 
 
-def _sweep(features, valid, positions, slopes, needed, shape, tile):
-    """Cost volume ``(m, Y, X)`` float32 (``inf`` where not computed or not enough views)."""
+def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=None):
+    """Cost volume ``(m, Y, X)`` float32 (``inf`` where not computed or not enough views); with a
+    ``tolerance (Y, X)``, the share of the views that agree with the centre instead."""
     member, min_count = _groups(positions)
     out = np.full((len(slopes),) + shape, np.inf, np.float32)
     has_valid = valid is not None
     valid = valid if has_valid else np.ones((1, 1, 1), np.float32)
+    within = tolerance is not None
+    tolerance = np.ascontiguousarray(tolerance, np.float32) if within else np.zeros((1, 1), np.float32)
     tiles, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
          np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count,
-         tiles, first, order, out)
+         tiles, first, order, tolerance, within, out)
     return out
 
 
@@ -601,6 +615,55 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     return DisparityEstimate(disparity, np.clip(confidence, 0, 1).astype(np.float32), (low, high), params)
 
 
+
+
+class FocusTest:
+    """Which pixels a slope brings into focus, from the views themselves (for the dense-aperture renderer).
+
+    At slope ``s`` a pixel is in focus where enough of the views agree with
+    the centre of the aperture: at least :data:`IN_FOCUS_SHARE` of the other
+    views differ from it by at most :data:`IN_FOCUS_COST` of the local
+    texture energy (luminance and gradient features, as the estimator
+    matches), on a patch textured enough to tell (:data:`TEXTURE_MIN`). The views a defocused occluder covers disagree, the others
+    still agree, so a surface partly hidden by an occluder's blur counts as
+    in focus too. The test overrides an estimate that says otherwise (a
+    periodic texture's wrong period, weak texture, an edge the estimate
+    fattened), so the renderer never blurs a surface the views show in focus.
+
+    Parameters
+    ----------
+    lf : LightField
+        The light field (its luminance features are made once and kept).
+
+    Examples
+    --------
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> scene = brick_room(n_views=4, size=64, seed=0)
+    >>> test = FocusTest(scene.lightfield)
+    >>> on_cube = scene.disparity == 4.0
+    >>> bool(test(4.0)[on_cube].mean() > 0.9), bool(test(-4.0)[on_cube].mean() < 0.1)
+    (True, True)
+    """
+
+    def __init__(self, lf):
+        self.positions = lf.flat_positions().astype(np.float64)
+        lum, self.valid = _luminance_views(lf)
+        self.features = _features(lum)
+        reference = self.features[_reference_views(self.positions)].mean(axis=0)  # (K, Y, X)
+        radius = 2
+        energy = _box(np.square(reference - _box(reference, radius)), radius).sum(axis=0)
+        self.tolerance = IN_FOCUS_COST * np.maximum(energy, TEXTURE_FLOOR)
+        self.textured = energy >= TEXTURE_MIN  # a flat patch looks the same in or out of focus
+
+    def __call__(self, slope):
+        """``(Y, X)`` bool: in focus at ``slope`` (never on flat patches: they say nothing)."""
+        shape = self.features.shape[2:]
+        share = _sweep(self.features, self.valid, self.positions, np.array([float(slope)]),
+                       _all_tiles(1, shape, TILE), shape, TILE, tolerance=self.tolerance)[0]
+        # the reference views agree with themselves: count the others only
+        n, n_ref = len(self.positions), len(_reference_views(self.positions))
+        others = (share * n - n_ref) / max(n - n_ref, 1)
+        return (others >= IN_FOCUS_SHARE) & self.textured
 
 
 def disparity_scores(disparity, truth, border=15):

@@ -21,7 +21,8 @@ when not given):
    surface sweeps over the view's cell, ``|d - slope| * spacing`` px wide
    on each axis, and the bins are composited front to back: a defocused
    occluder spreads over the in-focus surface it partly hides, and hides
-   it in proportion.
+   it in proportion. Only clearly nearer bins hide (their blur widths
+   differ by :data:`OCCLUSION_GAP_PX` or more); bins of one surface add up.
 4. The views' composites are summed and normalised by their coverage.
 
 Pixels in focus (``|d - slope| * spacing < 0.5`` px) with no defocused
@@ -61,6 +62,12 @@ BIN_PX = 1.0
 MAX_BINS = 32
 #: Pixels whose surface moves less than this (px) between neighbouring views are in focus.
 IN_FOCUS_PX = 0.5
+#: Bins whose blur widths differ by less than this (px) are parts of one surface: they add up
+#: rather than hide each other (a continuous or noisily estimated surface spans several bins).
+OCCLUSION_GAP_PX = 4.0
+#: Share of the views that must show an in-focus surface at a pixel before it fills what the other
+#: views' cells leave uncovered there.
+FILL_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -116,6 +123,34 @@ def _bins(disparity, slope, spacing, max_bins):
     return edges, centres, taps
 
 
+def _in_focus_colour(stack, bins, taps):
+    """The colour of the in-focus surface at each pixel, from the views whose sample shows it.
+
+    Only where at least :data:`FILL_SHARE` of the views (by weight) show an
+    in-focus surface: an in-focus background partly hidden by an occluder's
+    blur, not a stray sample.
+
+    Returns ``(fill (Y, X, C) float32, has_fill (Y, X) bool)``.
+    """
+    sharp = np.flatnonzero(~np.any(taps != 0, axis=1))
+    shows = np.isin(bins, sharp) & (stack.weights > 0)
+    weight = np.where(shows, stack.weights, 0).astype(np.float32)
+    total = weight.sum(axis=0)
+    colour = np.einsum("nyx,nyxc->yxc", weight, stack.values)
+    has_fill = total >= FILL_SHARE * np.maximum(stack.weights.sum(axis=0), 1e-6)
+    np.divide(colour, total[..., None], out=colour, where=has_fill[..., None])
+    return np.ascontiguousarray(colour, np.float32), has_fill
+
+
+def _occluders(ordered_centres, gap):
+    """For each bin in front-to-back order, the last position of a bin at least ``gap`` nearer (-1: none)."""
+    out = np.full(len(ordered_centres), -1, np.int64)
+    for o, centre in enumerate(ordered_centres):
+        nearer = np.flatnonzero(np.abs(ordered_centres[:o] - centre) >= gap)
+        out[o] = nearer[-1] if nearer.size else -1
+    return out
+
+
 def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS):
     """The dense-aperture refocus of ``lf`` at ``slope`` for a known disparity (module notes).
 
@@ -157,11 +192,13 @@ def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first
     _run("shifted_bins", warped, warped_conf, positions, float(slope), edges, bins, sample_conf)
     stack = shift_views(lf, slope)
     order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
+    occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
+    fill, has_fill = _in_focus_colour(stack, bins, taps)
     chunks = 4
     num = np.zeros((chunks,) + shape + (lf.n_channels,), np.float32)
     den, blurred, trust = (np.zeros((chunks,) + shape, np.float32) for _ in range(3))
     _run("composite_views", np.ascontiguousarray(stack.values), np.ascontiguousarray(stack.weights), bins,
-         sample_conf, order, taps, chunks, num, den, blurred, trust)
+         sample_conf, order, occluders, taps, fill, has_fill, chunks, num, den, blurred, trust)
     num, den, blurred, trust = num.sum(0), den.sum(0), blurred.sum(0), trust.sum(0)
     seen = den > 1e-6
     image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])

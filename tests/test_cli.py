@@ -16,7 +16,7 @@ from napari_lfalias.cli import main
 
 from _cli_scenes import temporaries, write_plane
 
-SUBCOMMANDS = ["convert", "refocus", "detect", "reduce", "info", "demo", "batch"]
+SUBCOMMANDS = ["convert", "depth", "refocus", "detect", "reduce", "info", "demo", "batch"]
 
 
 @pytest.fixture
@@ -266,7 +266,7 @@ def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monk
     def no_reading(*args):
         raise AssertionError("read the input before checking the options")
 
-    monkeypatch.setattr(commands, "_open", no_reading)
+    monkeypatch.setattr(commands, "open_lightfield", no_reading)
     for name in ("detect", "reduce"):
         status, _, err = run(capsys, name, plane[0], "--slope", 0, "-o", tmp_path / "x.tif", "--gamma", 0)
         assert status == 1
@@ -275,6 +275,7 @@ def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monk
         status, _, err = run(capsys, name, plane[0], "--slope", "inf", "-o", tmp_path / "x.tif")
         assert status == 1
         assert_one_line_error(err, "slope", "finite")
+    assert list(tmp_path.glob("x*")) == []
 
 
 @pytest.mark.parametrize(
@@ -286,6 +287,215 @@ def test_out_of_range_detection_options_are_one_line_errors(capsys, plane, tmp_p
     assert status == 1
     assert_one_line_error(err, word)
     assert list(tmp_path.glob("r*.png")) == []
+
+
+# -- depth, --antialias and --disparity ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    """The brick room (8 x 8 views of 64 px, wall at disparity -4, cube at +4) as a light-field TIFF."""
+    from napari_lfalias.synthetic import brick_room
+
+    scene = brick_room(n_views=8, size=64, seed=0)
+    path = tmp_path_factory.mktemp("room") / "room.tif"
+    io_write.write_lightfield(path, scene.lightfield)
+    return path, scene
+
+
+@pytest.fixture(scope="module")
+def depth(room, tmp_path_factory):
+    """``lfalias depth room.tif -o depth.tif`` run once: (path, stdout)."""
+    out = tmp_path_factory.mktemp("depth") / "depth.tif"
+    assert main(["depth", str(room[0]), "-o", str(out), "-q"]) == 0
+    return out
+
+
+def test_depth_writes_the_estimate_of_the_api_with_its_confidence_and_settings(capsys, room, tmp_path):
+    path, scene = room
+    out = tmp_path / "d.tif"
+    status, stdout, err = run(capsys, "depth", path, "-o", out)
+    assert status == 0, err
+    expected = lfa.estimate_disparity(scene.lightfield)
+    disparity, confidence = tifffile.imread(out), tifffile.imread(tmp_path / "d_confidence.tif")
+    assert disparity.dtype == confidence.dtype == np.float32
+    np.testing.assert_array_equal(disparity, expected.disparity)
+    np.testing.assert_array_equal(confidence, expected.confidence)
+    # The estimate itself is right: the wall at -4 and the cube at +4, away from the cube's edges.
+    assert np.median(disparity[:8]) == pytest.approx(-4, abs=0.1)
+    assert np.median(disparity[30:40, 28:38]) == pytest.approx(4, abs=0.1)
+    settings = tifffile.TiffFile(out).shaped_metadata[0]
+    assert settings["content"] == "disparity" and settings["input"] == str(path)
+    assert settings["disparity_range"] == pytest.approx(list(expected.disparity_range))
+    assert settings["radius"] == expected.params["radius"] and settings["confidence_file"] == "d_confidence.tif"
+    # What it prints: the range found and the median confidence; progress on stderr.
+    low, high = float(expected.disparity.min()), float(expected.disparity.max())
+    assert f"disparity {low:+.3g} .. {high:+.3g} px per view step" in stdout
+    assert f"median confidence {float(np.median(expected.confidence)):.2f}" in stdout
+    assert "disparity: 5/5 steps finished" in err
+    for name in ("d.tif", "d_confidence.tif", "d.png"):
+        assert f"wrote {tmp_path / name}" in stdout
+
+
+def test_depth_png_is_the_coloured_disparity_over_a_colour_bar(capsys, depth):
+    from napari_lfalias._cli.colormap import COLORMAP, colorize
+
+    disparity = tifffile.imread(depth)
+    pixels = iio.imread(depth.with_suffix(".png"))
+    zoom = 4  # 64 px views are enlarged to 256 px
+    assert pixels.dtype == np.uint8 and pixels.shape[1] == 64 * zoom and pixels.shape[0] > 64 * zoom + 10
+    shown = colorize(disparity, float(disparity.min()), float(disparity.max()))
+    np.testing.assert_array_equal(pixels[:64 * zoom:zoom, ::zoom, :3], shown)
+    # Under it, the colour bar runs from the first colour of the map to the last.
+    bar = pixels[64 * zoom + 5, :, :3]
+    np.testing.assert_array_equal(bar[[4, -5]], COLORMAP[[0, -1]])
+
+
+def test_the_colour_map_is_perceptual():
+    from napari_lfalias._cli.colormap import COLORMAP, _to_oklab
+
+    lightness = _to_oklab(COLORMAP / 255.0)[:, 0]
+    assert np.diff(lightness).min() > -2e-3  # rises all the way, up to the 8-bit rounding
+    assert lightness[-1] - lightness[0] > 0.6
+    steps = np.linalg.norm(np.diff(_to_oklab(COLORMAP / 255.0), axis=0), axis=1)
+    assert steps.max() < 3 * np.median(steps)  # no jumps: colours change at an even pace
+
+
+def test_depth_range_is_the_searched_range(capsys, room, tmp_path):
+    path, scene = room
+    out = tmp_path / "d.tif"
+    assert run(capsys, "depth", path, "-o", out, "--range", -5, 5, "-q")[0] == 0
+    expected = lfa.estimate_disparity(scene.lightfield, (-5, 5))
+    np.testing.assert_array_equal(tifffile.imread(out), expected.disparity)
+    assert tifffile.TiffFile(out).shaped_metadata[0]["disparity_range"] == [-5, 5]
+
+
+def test_refocus_antialias_is_the_dense_aperture_refocus_of_the_api(capsys, room, depth, tmp_path):
+    path, scene = room
+    lf = scene.lightfield
+    out = tmp_path / "a.tif"
+    status, stdout, _ = run(capsys, "refocus", path, "--slope", 4, "--antialias", "-o", out)
+    assert status == 0 and "disparity" in stdout and "refocus (dense aperture)" in stdout
+    expected = lfa.antialiased_refocus(lf, 4.0)
+    np.testing.assert_array_equal(tifffile.imread(out), expected)
+    metadata = tifffile.TiffFile(out).shaped_metadata[0]
+    assert metadata["antialias"] is True and metadata["disparity"] == "estimated"
+    # It is not the plain refocus: the wall's copies are joined into its blur, nearer the truth.
+    reference = scene.reference(4.0, interpolation="bilinear")
+    naive = lfa.refocus(lf, 4.0)
+    from napari_lfalias.metrics import psnr
+
+    assert psnr(expected, reference) > psnr(naive, reference) + 6
+    # --disparity reuses the depth file and its confidence: the same image, no estimate.
+    again = tmp_path / "b.tif"
+    status, stdout, _ = run(capsys, "refocus", path, "--slope", 4, "--antialias", "--disparity", depth, "-o", again)
+    assert status == 0 and "] disparity" not in stdout
+    np.testing.assert_array_equal(tifffile.imread(again), expected)
+    assert tifffile.TiffFile(again).shaped_metadata[0]["disparity"] == str(depth)
+
+
+def test_a_disparity_without_confidence_is_trusted_everywhere(capsys, room, tmp_path):
+    """A depth map from elsewhere (here the scene's true disparity): the API's result for that bare map."""
+    path, scene = room
+    truth = tmp_path / "truth.tif"
+    tifffile.imwrite(truth, scene.disparity.astype(np.float32))
+    out = tmp_path / "a.tif"
+    assert run(capsys, "refocus", path, "--slope", 4, "--antialias", "--disparity", truth, "-o", out, "-q")[0] == 0
+    np.testing.assert_array_equal(tifffile.imread(out), lfa.antialiased_refocus(scene.lightfield, 4.0, scene.disparity))
+
+
+def test_detect_and_reduce_take_the_disparity_file(capsys, room, depth, tmp_path):
+    from napari_lfalias._cli.depth import read_disparity
+
+    path, scene = room
+    lf = scene.lightfield
+    estimate = read_disparity(depth).for_views(lf.image_shape)
+    assert run(capsys, "detect", path, "--slope", 4, "--disparity", depth, "-o", tmp_path / "s.tif", "-q")[0] == 0
+    expected = lfa.detect_aliasing(lf, 4.0, disparity=estimate)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "s.tif"), expected.cv)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "s_mask.tif").astype(bool), expected.mask)
+    assert 0.3 < expected.mask.mean() < 0.9  # the wall aliases, the cube does not
+    status, stdout, _ = run(capsys, "reduce", path, "--slope", 4, "--disparity", depth, "-o", tmp_path / "r.tif")
+    assert status == 0
+    expected = lfa.reduce_aliasing(lf, 4.0, disparity=estimate)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "r.tif"), expected.image)
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "r_levels.tif"), expected.level)
+    metadata = tifffile.TiffFile(tmp_path / "r.tif").shaped_metadata[0]
+    assert metadata["method"] == "depth" and metadata["disparity"] == str(depth)
+    # Without --disparity, the default estimates it (in a stage of its own): the API's default result.
+    status, stdout, _ = run(capsys, "reduce", path, "--slope", 4, "-o", tmp_path / "e.tif")
+    assert status == 0 and "] disparity" in stdout
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "e.tif"), lfa.reduce_aliasing(lf, 4.0).image)
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["refocus", "{room}", "--slope", 4, "--disparity", "{depth}", "-o", "{tmp}/a.tif"], ["--disparity", "--antialias"]),
+        (["detect", "{room}", "--slope", 4, "--method", "analytic", "--disparity", "{depth}", "-o", "{tmp}/a.tif"],
+         ["--disparity", "--method analytic"]),
+        (["reduce", "{room}", "--slope", 4, "--preset", "paper", "--disparity", "{depth}", "-o", "{tmp}/a.tif"],
+         ["--disparity", "--preset paper"]),
+        (["reduce", "{room}", "--slope", 4, "--disparity", "{tmp}/none.tif", "-o", "{tmp}/a.tif"],
+         ["none.tif", "no such file"]),
+        (["reduce", "{room}", "--slope", 4, "--disparity", "{tmp}/junk.tif", "-o", "{tmp}/a.tif"],
+         ["junk.tif", "not a readable TIFF"]),
+        (["reduce", "{room}", "--slope", 4, "--disparity", "{tmp}/nan.tif", "-o", "{tmp}/a.tif"], ["nan.tif", "NaN"]),
+        (["reduce", "{room}", "--slope", 4, "--disparity", "{tmp}/cube.tif", "-o", "{tmp}/a.tif"],
+         ["cube.tif", "one (Y, X) plane"]),
+        (["refocus", "{room}", "--slope", 4, "--antialias", "--disparity", "{tmp}/odd.tif", "-o", "{tmp}/a.tif"],
+         ["odd_confidence.tif", "[0, 1]"]),
+        (["depth", "{room}", "-o", "{tmp}/a.png"], ["a.png", ".tif"]),
+        (["depth", "{room}", "-o", "{tmp}/a.tif", "--range", 3, -3], ["--range", "LOW <= HIGH"]),
+        (["depth", "{room}", "-o", "{tmp}/a.tif", "--range", "nan", 1], ["--range", "finite"]),
+    ],
+)
+def test_bad_depth_options_fail_before_the_input_is_read(capsys, room, depth, tmp_path, monkeypatch, argv, words):
+    from napari_lfalias._cli import commands
+
+    def no_reading(*args):
+        raise AssertionError("read the input before checking the options")
+
+    monkeypatch.setattr(commands, "open_lightfield", no_reading)
+    (tmp_path / "junk.tif").write_bytes(b"not a TIFF at all")
+    tifffile.imwrite(tmp_path / "nan.tif", np.full((64, 64), np.nan, np.float32))
+    tifffile.imwrite(tmp_path / "cube.tif", np.zeros((2, 64, 64, 3), np.float32), photometric="minisblack")
+    tifffile.imwrite(tmp_path / "odd.tif", np.zeros((64, 64), np.float32))
+    tifffile.imwrite(tmp_path / "odd_confidence.tif", np.full((64, 64), 2, np.float32))
+    argv = [str(a).format(room=room[0], depth=depth, tmp=tmp_path) for a in argv]
+    status, _, err = run(capsys, *argv)
+    assert status == 1
+    assert_one_line_error(err, *words)
+    assert list(tmp_path.glob("a*")) == []
+
+
+def test_a_disparity_map_of_another_shape_is_named(capsys, plane, depth, tmp_path):
+    path, _ = plane  # 48 x 48 px views; the depth file is of the 64 px brick room
+    out = tmp_path / "r.tif"
+    status, _, err = run(capsys, "reduce", path, "--slope", 1, "--disparity", depth, "-o", out)
+    assert status == 1
+    assert_one_line_error(err, str(depth), "64 x 64 px", "48 x 48 px", "lfalias depth")
+    assert not out.exists() and temporaries(tmp_path) == []
+
+
+def test_depth_never_replaces_its_inputs_or_an_existing_output(capsys, room, depth, tmp_path):
+    path, _ = room
+    before = depth.read_bytes()
+    status, _, err = run(capsys, "reduce", path, "--slope", 4, "--disparity", depth, "-o", depth, "--overwrite")
+    assert status == 1
+    assert_one_line_error(err, "is an input")
+    confidence = depth.with_name("depth_confidence.tif")
+    status, _, err = run(capsys, "refocus", path, "--slope", 4, "--antialias", "--disparity", depth, "-o",
+                         confidence, "--overwrite")
+    assert status == 1
+    assert_one_line_error(err, "is an input")
+    assert depth.read_bytes() == before
+    out = tmp_path / "d.tif"
+    (tmp_path / "d.png").write_bytes(b"mine")
+    status, _, err = run(capsys, "depth", path, "-o", out)
+    assert status == 1
+    assert_one_line_error(err, "d.png", "--overwrite")
+    assert not out.exists() and (tmp_path / "d.png").read_bytes() == b"mine"
 
 
 # -- convert and info ------------------------------------------------------------
@@ -423,75 +633,119 @@ def test_a_lenslet_capture_without_white_is_a_clear_error(capsys, guv, tmp_path)
 
 
 def test_demo_runs_the_bundled_capture_end_to_end(capsys, tmp_path):
-    from napari_lfalias._cli.demo import DEMO_FILES, guv_files
+    from scipy import ndimage
 
-    assert guv_files() is not None, "the bundled GUV sample (sample_data/guv) is missing"
+    from napari_lfalias._cli.demo import DEMO_FILES
+    from napari_lfalias._cli.demo_guv import guv_files
+
+    files = guv_files()
+    assert files is not None, "the bundled GUV sample (sample_data/guv) is missing"
     out = tmp_path / "demo"
     status, stdout, err = run(capsys, "demo", "--out", out)
     assert status == 0, err
     assert "GUV" in stdout and "note:" not in stdout and "15 x 15 views" in stdout
-    for stage in ("decode", "sweep", "refocus", "detect", "reduce", "write"):
-        assert stage in stdout
+    for stage in ("load + decode", "disparity", "aliasing sweep", "refocus", "detect", "reduce", "write"):
+        assert f"] GUV: {stage}" in stdout
+    assert "found: " in stdout
     assert sorted(p.name for p in out.iterdir()) == sorted(DEMO_FILES)
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["method"] == "depth" and summary["threshold"] == 0.02
-    assert set(summary["seconds"]) >= {"load + decode GUV capture", "refocus", "all (wall)"}
-    # The slope shown is the most aliased one of the sweep, and it does alias.
-    candidates = summary["slope_candidates"]
-    assert summary["slope"] == candidates["slopes"][int(np.argmax(candidates["aliased_fractions"]))]
-    assert summary["aliased_fraction"] == pytest.approx(max(candidates["aliased_fractions"]))
-    assert 0 < summary["aliased_fraction"] < 1
-    refocused, reduced = tifffile.imread(out / "refocus.tif"), tifffile.imread(out / "reduced.tif")
-    levels = tifffile.imread(out / "levels.tif")
-    assert reduced.shape == refocused.shape == levels.shape == tuple(summary["view_size"])
+    assert summary["options"]["method"] == "depth" and summary["options"]["threshold"] == 0.02
+    assert set(summary["seconds"]) >= {"GUV: load + decode", "GUV: disparity", "room: reduce (depth)", "all (wall)"}
+    guv = summary["guv"]
+    # The GUV images are the API's on the decoded capture, at the slope shown.
+    lf = lfa.load(files["raw"], white=files["white"], dark=files["dark"])
+    estimate = lfa.estimate_disparity(lf)
+    np.testing.assert_array_equal(tifffile.imread(out / "guv_disparity.tif"), estimate.disparity)
+    refocused, reduced = tifffile.imread(out / "guv_refocus.tif"), tifffile.imread(out / "guv_reduced.tif")
+    np.testing.assert_array_equal(refocused, lfa.refocus(lf, guv["slope"])[..., 0])
+    # The slope shown is the most aliased one of the sweep (ties: the largest mean score).
+    candidates = guv["slope_candidates"]
+    ranked = sorted(zip(candidates["aliased_fractions"], candidates["mean_scores"], candidates["slopes"]))
+    assert guv["slope"] == ranked[-1][2]
+    assert guv["aliased_fraction"] == pytest.approx(max(candidates["aliased_fractions"]))
+    assert guv["largest_copy_spacing_px"] == pytest.approx(
+        float(np.abs(estimate.disparity - guv["slope"]).max()), rel=1e-5)
+    # The reduction changes the aliased pixels and their soft edge, nothing else.
+    mask = iio.imread(out / "guv_mask.png")[::guv["preview_zoom"], ::guv["preview_zoom"]] > 0
+    changed = reduced != refocused
+    assert not (changed & ~ndimage.binary_dilation(mask, iterations=3)).any()
+    assert guv["changed_fraction"] == pytest.approx(changed.mean())
     assert np.isfinite(reduced).all()
-    # Algorithm 2 changes the aliased pixels only: level-0 pixels keep the refocus exactly.
-    assert levels.max() > 0
-    np.testing.assert_array_equal(reduced[levels == 0], refocused[levels == 0])
-    assert np.abs(reduced - refocused)[levels > 0].max() > 0
-    # The previews are enlarged so that 28 x 28 px views can be seen.
-    zoom = summary["preview_zoom"]
-    assert zoom > 1 and iio.imread(out / "refocus.png").shape == (28 * zoom, 28 * zoom)
+    zoom = guv["preview_zoom"]
+    assert zoom > 1 and iio.imread(out / "guv_refocus.png").shape == (28 * zoom, 28 * zoom)
+    assert iio.imread(out / "guv_overview.png").shape[1] > 6 * 28 * zoom
+
+    # The brick room: the reduction removes the wall's aliasing and degrades nothing else.
+    room = summary["brick_room"]
+    from napari_lfalias.metrics import aliased_pixels, psnr
+    from napari_lfalias.synthetic import brick_room
+
+    scene = brick_room(n_views=8, size=256, seed=0)
+    reference = scene.reference(4.0, interpolation="bilinear")
+    naive, reduced = tifffile.imread(out / "room_naive.tif"), tifffile.imread(out / "room_reduced.tif")
+    paper = tifffile.imread(out / "room_paper.tif")
+    np.testing.assert_array_equal(naive, lfa.refocus(scene.lightfield, 4.0))
+    np.testing.assert_array_equal(paper, lfa.reduce_aliasing(scene.lightfield, 4.0, preset="paper", seed=0).image)
+    truth = aliased_pixels(naive, reference)
+    assert 0.3 < truth.mean() < 0.9
+    gain_aliased = psnr(reduced, reference, mask=truth) - psnr(naive, reference, mask=truth)
+    gain_clean = psnr(reduced, reference, mask=~truth) - psnr(naive, reference, mask=~truth)
+    assert gain_aliased > 6 and gain_clean > -0.1
+    assert room["psnr"]["reduced"]["aliased"] == pytest.approx(psnr(reduced, reference, mask=truth))
+    assert room["psnr"]["naive"]["clean"] == pytest.approx(psnr(naive, reference, mask=~truth))
+    assert room["psnr"]["paper"]["image"] == pytest.approx(psnr(paper, reference))
+    assert room["truly_aliased_fraction"] == pytest.approx(truth.mean())
+    for label in ("naive refocus", "reduced (default: depth, T = 0.02)", "reduced (--preset paper"):
+        assert label in stdout
+    assert f"{room['psnr']['reduced']['aliased']:.2f}" in stdout
+    assert f"the reduction {gain_aliased:+.1f} dB where aliased" in stdout
+    # The overview shows the difference: two rows of five 256 px panels.
     overview = iio.imread(out / "overview.png")
-    assert overview.shape[0] > 28 * zoom and overview.shape[1] > 6 * 28 * zoom and overview.std() > 10
+    assert overview.shape[0] > 2 * 256 and overview.shape[1] > 5 * 256 and overview.std() > 10
+
     # A second run keeps the first run's files unless asked.
-    before = (out / "reduced.tif").read_bytes()
+    before = (out / "room_reduced.tif").read_bytes()
     status, _, err = run(capsys, "demo", "--out", out)
     assert status == 1
     assert_one_line_error(err, "--overwrite")
-    assert (out / "reduced.tif").read_bytes() == before
+    assert (out / "room_reduced.tif").read_bytes() == before
+    # --slope, -q and the detection options reach both parts.
     status, stdout, _ = run(capsys, "demo", "--out", out, "--overwrite", "-q", "--slope", "-0.25",
-                            "--threshold-scale", "cv", "--threshold", "0.011")
+                            "--method", "analytic", "--threshold", "0.011")
     assert status == 0 and "[1/" not in stdout and " s in all" not in stdout and f"{len(DEMO_FILES)} files in" in stdout
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["slope"] == -0.25 and "slope_candidates" not in summary
+    assert summary["guv"]["slope"] == -0.25 and "slope_candidates" not in summary["guv"]
+    assert "reduced (analytic, T = 0.011)" in stdout
+    np.testing.assert_array_equal(tifffile.imread(out / "room_reduced.tif"),
+                                  lfa.reduce_aliasing(scene.lightfield, 4.0, method="analytic", threshold=0.011).image)
     assert temporaries(out) == []
 
 
 @pytest.mark.parametrize("missing", ["sample", "decoder"])
-def test_demo_falls_back_to_the_synthetic_scene_and_says_so(capsys, tmp_path, monkeypatch, missing):
+def test_demo_without_the_capture_shows_the_brick_room_and_says_so(capsys, tmp_path, monkeypatch, missing):
     from napari_lfalias._cli import demo
 
     if missing == "sample":
         monkeypatch.setattr(demo, "guv_files", lambda: None)
     else:
         monkeypatch.setattr(demo, "_lenslet_decoder_available", lambda: False)
-    status, stdout, err = run(capsys, "demo", "--out", tmp_path / "demo")
+    status, stdout, err = run(capsys, "demo", "--out", tmp_path / "demo", "-q")
     assert status == 0, err
     why = "the bundled GUV sample is missing" if missing == "sample" else "the lenslet decoder is not installed"
     assert f"note: {why}" in stdout and "brick room" in stdout
+    assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == sorted(demo.demo_files(False))
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
-    assert summary["views"] == [8, 8] and summary["aliased_fraction"] > 0
-    assert (tmp_path / "demo" / "overview.png").exists()
+    assert "guv" not in summary and summary["brick_room"]["views"] == [8, 8]
 
 
-def test_demo_checks_its_options_before_decoding(capsys, tmp_path, monkeypatch):
+def test_demo_checks_its_options_before_any_work(capsys, tmp_path, monkeypatch):
     from napari_lfalias._cli import demo
 
-    def no_decoding(*args):
-        raise AssertionError("decoded before the options were checked")
+    def no_work(*args):
+        raise AssertionError("started before the options were checked")
 
-    monkeypatch.setattr(demo, "_load_scene", no_decoding)
+    monkeypatch.setattr(demo, "run_guv", no_work)
+    monkeypatch.setattr(demo, "run_room", no_work)
     status, _, err = run(capsys, "demo", "--out", tmp_path / "demo", "--gamma", 1.5)
     assert status == 1
     assert_one_line_error(err, "gamma")
@@ -500,6 +754,12 @@ def test_demo_checks_its_options_before_decoding(capsys, tmp_path, monkeypatch):
     status, _, err = run(capsys, "demo", "--out", tmp_path / "file")
     assert status == 1
     assert_one_line_error(err, "must be a folder")
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "room_naive.png").write_bytes(b"mine")
+    status, _, err = run(capsys, "demo", "--out", tmp_path / "old")
+    assert status == 1
+    assert_one_line_error(err, "room_naive.png", "--overwrite")
+    assert [p.name for p in (tmp_path / "old").iterdir()] == ["room_naive.png"]
 
 
 def test_keep_in_focus_reaches_the_api(capsys, tmp_path):

@@ -20,13 +20,15 @@ __all__ = ["main", "build_parser"]
 
 EXAMPLES = """\
 examples:
-  lfalias demo                                   # the bundled GUV capture, end to end
-  lfalias info capture.tif --white white.tif     # what a file or folder holds
+  lfalias demo                             # a real capture end to end; the paper's brick room vs its truth
+  lfalias info capture.tif --white white.tif                   # what a file or folder holds
   lfalias convert capture.tif --white white.tif --dark dark.tif -o views.tif
+  lfalias depth views.tif -o depth.tif                         # + depth_confidence.tif, depth.png
   lfalias refocus views.tif --slope 0.5 -o refocus.png
-  lfalias detect views.tif --slope 0.5 -o cv.tif          # + cv_mask.tif
-  lfalias detect views.tif --slope 0.5 --threshold-scale angular --threshold 0.48 -o cv.png
-  lfalias reduce scene_folder/ --slope 1.5 --levels 3 --solver dct -o reduced.png
+  lfalias refocus views.tif --slope 0.5 --antialias --disparity depth.tif -o dense.png
+  lfalias detect views.tif --slope 0.5 -o score.tif            # + score_mask.tif
+  lfalias reduce views.tif --slope 0.5 --disparity depth.tif -o reduced.png
+  lfalias reduce views.tif --slope 0.5 --preset paper --seed 0 -o paper.png
   lfalias batch raw/*.tif --white white.tif --task convert --out views/ --workers 2
   lfalias batch views/*.tif --task reduce --slope 0.5 --out reduced/ --scheduler tcp://10.0.0.5:8786
 
@@ -49,11 +51,11 @@ FLAGS = {
     "slope": "--slope", "gamma": "--gamma", "n_patterns": "--n", "threshold": "--threshold",
     "threshold_scale": "--threshold-scale", "method": "--method", "preset": "--preset", "seed": "--seed", "max_level": "--levels",
     "solver": "--solver", "keep_in_focus": "--keep-in-focus", "workers": "--workers", "scheduler": "--scheduler",
-    "fmt": "--format", "task": "--task",
+    "fmt": "--format", "task": "--task", "disparity_range": "--range",
 }
 _NAMES = "|".join(sorted(FLAGS, key=len, reverse=True))
 _ASSIGNED = re.compile(rf"(?<![\w.'`-])(?P<name>{_NAMES})=(?P<value>\(U, V\)|'[^']*'|\"[^\"]*\"|[^\s,;)]+)?")
-_SUBJECT = re.compile(rf"(?P<lead>^|; |\()(?P<name>{_NAMES})(?= must\b|:)")
+_SUBJECT = re.compile(rf"(?P<lead>^|; |\()(?P<name>{_NAMES})(?= must\b|:| \()")
 
 
 def as_flags(message):
@@ -69,6 +71,8 @@ def as_flags(message):
     'pass --grid UxV or --nonfinite mask'
     >>> as_flags("task='reduce' needs slope= (the disparity in focus)")
     '--task reduce needs --slope (the disparity in focus)'
+    >>> as_flags("disparity_range (-300.0, -200.0) lies beyond +-36.6 px per view step")
+    '--range (-300.0, -200.0) lies beyond +-36.6 px per view step'
     """
     def assigned(match):
         flag, value = FLAGS[match["name"]], match["value"]
@@ -177,6 +181,14 @@ def _add_reduction_options(parser):
     )
 
 
+def _add_disparity(parser, used_by):
+    parser.add_argument(
+        "--disparity", metavar="FILE",
+        help=f"{used_by}: the disparity TIFF written by `lfalias depth` from the same input (its confidence "
+        "beside it is read too) instead of estimating it again",
+    )
+
+
 def _add_contrast(parser):
     parser.add_argument(
         "--auto-contrast", action="store_true",
@@ -218,25 +230,46 @@ def build_parser():
     _add_output(sub, "output .tif/.tiff (ImageJ hyperstack, axes TZCYX = U V C Y X) or .zarr")
     sub.add_argument("--save-grid", metavar="JSON", help="also write the calibrated lenslet grid model")
 
+    sub = command("depth", "estimate the disparity of every pixel from the light field itself",
+                  "lfalias depth views.tif -o depth.tif --range -2 2",
+                  ": a float32 TIFF (pixels per view step; refocus --slope D brings a pixel of disparity D into "
+                  "focus), its confidence in [0, 1] beside it (<name>_confidence.tif) and a coloured preview "
+                  "with a colour bar (<name>.png). --disparity FILE of refocus, detect and reduce reuses it.")
+    _add_input(sub)
+    _add_output(sub, "disparity: .tif or .tiff (float32, the settings in its metadata)")
+    sub.add_argument("--range", nargs=2, type=float, metavar=("LOW", "HIGH"),
+                     help="disparities to search, px per view step (default: the input's own range where it "
+                     "states one, else up to 10 %% of the view size of motion of the outermost view either way)")
+
     # name, help, example, output help, detection options, --levels, --auto-contrast
     image_commands = [
-        ("refocus", "shift-and-add refocus on one slope", "lfalias refocus views.tif --slope 0.5 -o refocus.png",
+        ("refocus", "shift-and-add refocus on one slope; --antialias: what a dense aperture records",
+         "lfalias refocus views.tif --slope 0.5 --antialias -o refocus.png",
          "image: .png (8-bit preview) or .tif (float32)", False, False, True),
-        ("detect", "detect angular aliasing (Algorithm 1): Cv map and mask",
-         "lfalias detect views.tif --slope 0.5 --method monte_carlo --seed 1 -o cv.png",
-         "Cv map (the angular Cv with --threshold-scale angular): .png (T at mid-grey) or .tif (float32); "
-         "the mask goes to <name>_mask", True, False, False),
-        ("reduce", "reduce angular aliasing (Algorithm 2): multi-level gradient-domain fusion",
-         "lfalias reduce views.tif --slope 0.5 --levels 3 -o reduced.png",
-         "fused image: .png or .tif; level map and Cv map go to <name>_levels and <name>_cv", True, True, True),
+        ("detect", "detect angular aliasing: aliasing score (or Cv) and mask",
+         "lfalias detect views.tif --slope 0.5 -o score.png",
+         "the map T applies to (default method: the aliasing score; Cv methods: Cv, or the angular Cv with "
+         "--threshold-scale angular): .png (T at mid-grey) or .tif (float32); the mask goes to <name>_mask",
+         True, False, False),
+        ("reduce", "reduce angular aliasing: the aliased pixels as a dense aperture records them (default), "
+         "or Algorithm 2's multi-level fusion (Cv methods, --preset paper)",
+         "lfalias reduce views.tif --slope 0.5 -o reduced.png",
+         "reduced image: .png or .tif; level map and score (or Cv) go to <name>_levels and <name>_cv",
+         True, True, True),
     ]
     for name, help_text, example, out_help, detection, levels, contrast in image_commands:
         sub = command(name, help_text, example)
         _add_input(sub)
         _add_slope(sub)
         _add_output(sub, out_help)
+        if name == "refocus":
+            sub.add_argument("--antialias", action="store_true",
+                             help="render what a dense aperture records (each surface's copies joined into "
+                             "its true blur) from the light field's disparity; in-focus pixels stay the refocus")
+            _add_disparity(sub, "--antialias")
         if detection:
             add_detection_options(sub)
+            _add_disparity(sub, "--method depth (the default)")
         if levels:
             _add_reduction_options(sub)
         if contrast:
@@ -248,13 +281,17 @@ def build_parser():
     sub.add_argument("--json", action="store_true", help="print the facts as JSON")
 
     sub = command(
-        "demo", "run the whole pipeline on the bundled GUV capture and time each stage",
+        "demo", "run the whole pipeline on the bundled GUV capture, then on the paper's brick room, where aliasing "
+        "is strong and the dense-aperture truth is known; time each stage",
         "lfalias demo --out lfalias-demo --overwrite",
-        ". Without --slope it sweeps the capture's disparity range and shows the most aliased slope.",
+        ". Without --slope it sweeps the capture's disparity and shows its most aliased slope; the brick room is "
+        "focused on its cube (slope 4), its reduction (the default, or the options given) and --preset paper "
+        "scored against the truth. Start with overview.png.",
     )
     sub.add_argument("-o", "--out", default="lfalias-demo", metavar="DIR", help="output folder (default ./lfalias-demo)")
     sub.add_argument("--overwrite", action="store_true", help="replace the files of an earlier run")
-    _add_slope(sub, required=False)
+    sub.add_argument("--slope", type=float, default=None,
+                     help="slope of the GUV capture, px per view step (default: the most aliased of a sweep)")
     add_detection_options(sub)
     _add_reduction_options(sub)
 
@@ -277,6 +314,10 @@ def build_parser():
 
 
 def _dispatch(args, stream):
+    if args.command == "depth":
+        from ._cli.depth import run_depth
+
+        return run_depth(args, stream)
     if args.command in ("convert", "refocus", "detect", "reduce"):
         from ._cli import commands
 

@@ -1,4 +1,11 @@
-"""The ``convert``, ``refocus``, ``detect`` and ``reduce`` subcommands."""
+"""The ``convert``, ``refocus``, ``detect`` and ``reduce`` subcommands.
+
+``refocus --antialias`` and the default detection and reduction
+(``method="depth"``) need the light field's disparity: it is estimated in a
+stage of its own (steps on stderr), or read from ``--disparity FILE``
+(written by ``lfalias depth``), which is checked before the input is
+decoded.
+"""
 
 from __future__ import annotations
 
@@ -8,11 +15,12 @@ from .. import io_write
 from .._inputs import check_reduce_options, open_input, resolved_options, view_grid
 from .._validate import finite_float
 from ..errors import ParameterError
+from .depth import confidence_of, estimate, read_disparity
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
 from .progress import Stages, StepProgress
 
 __all__ = ["run_convert", "run_refocus", "run_detect", "run_reduce", "detect_options", "reduce_options",
-           "thresholded_cv", "given_inputs"]
+           "thresholded_cv", "given_inputs", "open_lightfield"]
 
 
 #: A PNG preview whose image stays below this (99.5th percentile) gets a note about --auto-contrast.
@@ -49,10 +57,13 @@ def thresholded_cv(detection):
 def given_inputs(args):
     """The files and folders the user gave a command (never written to)."""
     grid_file = args.grid if args.grid is not None and view_grid(args.grid) is None else None
-    return [args.input, args.white, args.dark, grid_file]
+    disparity = getattr(args, "disparity", None)
+    extra = [disparity, confidence_of(disparity)] if disparity is not None else []
+    return [args.input, args.white, args.dark, grid_file, *extra]
 
 
-def _open(args, stages):
+def open_lightfield(args, stages):
+    """Decode ``args.input`` in the stage "load", its steps on stderr."""
     with stages("load"):
         progress = StepProgress("decoding", quiet=args.quiet)
         try:
@@ -94,7 +105,7 @@ def run_convert(args, stream):
     outputs = [out] + ([Path(args.save_grid)] if args.save_grid else [])
     check_outputs(outputs, args.overwrite, given_inputs(args))
     stages = Stages(2, quiet=args.quiet, stream=stream)
-    lf = _open(args, stages)
+    lf = open_lightfield(args, stages)
     grid = lf.meta.get("grid")
     if args.save_grid and not hasattr(grid, "to_json"):
         raise ParameterError(f"{args.input}: --save-grid needs a lenslet capture; this input has no grid model")
@@ -108,55 +119,108 @@ def run_convert(args, stream):
     return 0
 
 
-def _start(args, stream, tags=(), options=None):
-    """Check the outputs (``--out`` and its ``<name>_<tag>`` siblings) and the options, then open the input.
+def _given_disparity(args, method):
+    """``--disparity FILE`` read and checked (``None`` if not given), before anything is decoded.
+
+    ``method`` is what will use it: ``"antialias"`` (refocus) or the
+    resolved detection method, of which only ``"depth"`` uses a disparity.
+    """
+    if args.disparity is None:
+        return None
+    if method == "refocus":
+        raise ParameterError("--disparity is used by --antialias (the plain refocus needs no disparity)")
+    if method not in ("antialias", "depth"):
+        chosen = f"--method {method}" if args.method is not None else f"--preset {args.preset} (method {method})"
+        raise ParameterError(f"--disparity is used by --method depth (the default); {chosen} detects from "
+                             "the views alone")
+    return read_disparity(args.disparity)
+
+
+def _start(args, stream, tags=(), method=None):
+    """Check the outputs (``--out`` and its ``<name>_<tag>`` siblings), the options and ``--disparity``,
+    then open the input.
 
     Everything that can be wrong with the command line fails here, before
     the (possibly long) decoding.
+
+    Parameters
+    ----------
+    method : str, optional
+        What the command computes: ``"refocus"``, ``"antialias"``, or a
+        detection method; ``"antialias"`` and ``"depth"`` need a disparity.
 
     Returns
     -------
     outputs : list of Path
     stages : Stages
-        Three stages, the first ("load") done.
+        The first ("load") done; one more ("disparity") where it is estimated.
     lf : LightField
+    disparity : DisparityEstimate, ndarray or None
+        The file's (shape checked) or, where ``method`` needs one, the
+        estimate; otherwise ``None``.
     """
     image_suffix(args.out)
     out = Path(args.out)
     outputs = [out] + [sibling(out, tag) for tag in tags]
     check_outputs(outputs, args.overwrite, given_inputs(args))
     finite_float("slope", args.slope)
-    if options is not None:
-        check_reduce_options(args.slope, **options)
-    stages = Stages(3, quiet=args.quiet, stream=stream)
-    return outputs, stages, _open(args, stages)
+    given = _given_disparity(args, method)
+    estimated = method in ("antialias", "depth") and given is None
+    stages = Stages(3 + estimated, quiet=args.quiet, stream=stream)
+    lf = open_lightfield(args, stages)
+    if given is not None:
+        return outputs, stages, lf, given.for_views(lf.image_shape)
+    if estimated:
+        with stages("disparity"):
+            return outputs, stages, lf, estimate(lf, quiet=args.quiet)
+    return outputs, stages, lf, None
+
+
+def _disparity_source(args):
+    """What the metadata says of the disparity used: the file, or "estimated"."""
+    return str(args.disparity) if args.disparity is not None else "estimated"
 
 
 def run_refocus(args, stream):
-    """Refocus on one slope and write the image."""
-    outputs, stages, lf = _start(args, stream)
-    from ..refocus import refocus
+    """Refocus on one slope (``--antialias``: as a dense aperture records it) and write the image."""
+    outputs, stages, lf, disparity = _start(args, stream, method="antialias" if args.antialias else "refocus")
+    metadata = {"slope": args.slope}
+    with stages("refocus (dense aperture)" if args.antialias else "refocus"):
+        if args.antialias:
+            from ..render import antialiased_refocus
 
-    with stages("refocus"):
-        image = refocus(lf, args.slope)
+            image = antialiased_refocus(lf, args.slope, disparity)
+            metadata.update(antialias=True, disparity=_disparity_source(args))
+        else:
+            from ..refocus import refocus
+
+            image = refocus(lf, args.slope)
     with stages("write"):
         image_range = _image_range(image, args, stream)
-        written = write_outputs([(outputs[0], "image", image)], {"slope": args.slope}, args.overwrite, image_range)
+        written = write_outputs([(outputs[0], "image", image)], metadata, args.overwrite, image_range)
     _report(written, stages, stream)
     return 0
 
 
+def _detection_start(args, stream, tags, options):
+    """:func:`_start` for detect and reduce: the resolved options, and the disparity passed as ``disparity=``."""
+    check_reduce_options(args.slope, **options)  # names the option at fault, before resolving them
+    resolved = resolved_options(**options)
+    outputs, stages, lf, disparity = _start(args, stream, tags, method=resolved["method"])
+    metadata = {"slope": args.slope, **resolved}
+    if resolved["method"] == "depth":
+        metadata["disparity"] = _disparity_source(args)
+    return outputs, stages, lf, {**resolved, "disparity": disparity}, metadata
+
+
 def run_detect(args, stream):
     """Detect angular aliasing at one slope; write the aliasing score (Cv for the Cv methods) and the mask."""
-    options = detect_options(args)
-    outputs, stages, lf = _start(args, stream, ["mask"], options)
-    options = resolved_options(**options)
+    outputs, stages, lf, options, metadata = _detection_start(args, stream, ["mask"], detect_options(args))
     from ..detect import detect_aliasing
 
     with stages("detect"):
         detection = detect_aliasing(lf, args.slope, **options)
     with stages("write"):
-        metadata = {"slope": args.slope, **options}
         written = write_outputs(
             [(outputs[0], "cv", thresholded_cv(detection)), (outputs[1], "mask", detection.mask)], metadata,
             args.overwrite,
@@ -168,9 +232,7 @@ def run_detect(args, stream):
 
 def run_reduce(args, stream):
     """Reduce angular aliasing at one slope; write the image, level map and the aliasing score (or Cv)."""
-    options = reduce_options(args)
-    outputs, stages, lf = _start(args, stream, ["levels", "cv"], options)
-    options = resolved_options(**options)
+    outputs, stages, lf, options, metadata = _detection_start(args, stream, ["levels", "cv"], reduce_options(args))
     from ..reduce import reduce_aliasing
 
     with stages("reduce"):
@@ -179,7 +241,7 @@ def run_reduce(args, stream):
         image_range = _image_range(result.image, args, stream)
         items = [(outputs[0], "image", result.image), (outputs[1], "levels", result.level),
                  (outputs[2], "cv", thresholded_cv(result.detections[0]))]
-        written = write_outputs(items, {"slope": args.slope, **options}, args.overwrite, image_range)
+        written = write_outputs(items, metadata, args.overwrite, image_range)
     stream.write(f"pixels above level 0: {100.0 * float((result.level > 0).mean()):.2f} %\n")
     _report(written, stages, stream)
     return 0

@@ -9,7 +9,22 @@ import numpy as np
 from .. import io_write
 from ..errors import OutputExistsError, ParameterError
 
-__all__ = ["sibling", "check_outputs", "image_suffix", "write_outputs", "preview_range", "preview_settings", "montage"]
+__all__ = ["sibling", "check_outputs", "image_suffix", "write_outputs", "preview_range", "preview_settings", "montage",
+           "preview_zoom", "PREVIEW_SIZE"]
+
+#: PNG previews are enlarged (nearest neighbour) to at least this many pixels on their longest side.
+PREVIEW_SIZE = 256
+
+
+def preview_zoom(shape):
+    """The whole-number enlargement that brings an image of ``shape`` (Y, X) to :data:`PREVIEW_SIZE` px.
+
+    Examples
+    --------
+    >>> preview_zoom((28, 28)), preview_zoom((512, 300))
+    (10, 1)
+    """
+    return max(1, -(-PREVIEW_SIZE // max(shape[:2])))
 
 
 def image_suffix(path):
@@ -66,6 +81,8 @@ def preview_settings(kind, metadata, image_range=None):
         return {"vmin": 0.0, "vmax": float(max(1, metadata.get("max_level", 3)))}
     if kind == "mask":
         return {}
+    if kind == "error":
+        return {"vmin": 0.0, "vmax": float(metadata.get("error_range", 0.2))}
     raise ValueError(f"unknown kind of output {kind!r}")  # pragma: no cover - programming error
 
 
@@ -87,7 +104,8 @@ def write_outputs(items, metadata, overwrite, image_range=None, zoom=1):
     items : list of (Path, str, ndarray)
         ``kind`` is ``"image"`` (scaled by ``image_range``, default [0, 1]),
         ``"cv"`` (0 .. 2 * threshold, so the threshold is mid-grey),
-        ``"mask"`` (0/255) or ``"levels"`` (0 .. max_level).
+        ``"mask"`` (0/255), ``"levels"`` (0 .. max_level) or ``"error"``
+        (0 .. ``metadata["error_range"]``, default 0.2).
     metadata : dict
         Stored in every TIFF output (the parameters of the run).
     overwrite : bool
@@ -114,41 +132,73 @@ def write_outputs(items, metadata, overwrite, image_range=None, zoom=1):
 #: Height of the title strip above each panel of a :func:`montage`, in pixels.
 LABEL_HEIGHT = 22
 GAP = 6
+WHITE = 255
 
 
-def montage(panels, metadata, image_range=None, zoom=1):
-    """One RGB picture of titled panels side by side (the demo's overview).
-
-    Parameters
-    ----------
-    panels : list of (str, str, ndarray)
-        ``(title, kind, array)``; ``kind`` as in :func:`write_outputs`.
-        Every array has the same ``(Y, X)``.
-    metadata : dict
-        ``threshold`` and ``max_level`` scale the Cv and level panels.
-    image_range : (float, float), optional
-        Range of the ``"image"`` panels.
-    zoom : int
-        Whole-number enlargement, nearest neighbour.
-
-    Returns
-    -------
-    ndarray, shape (H, W, 3), uint8
-    """
+def _panel(title, kind, array, metadata, image_range, zoom):
+    """One titled tile: the preview of ``array`` (or ``array`` itself for ``kind="rgb"``) under its title."""
     import cv2
 
-    tiles = []
-    for title, kind, array in panels:
+    if kind == "rgb":  # already coloured (and enlarged): a colour preview with its legend
+        pixels = np.asarray(array, np.uint8)
+    else:
         array = np.asarray(array, bool) if kind == "mask" else np.asarray(array)
         pixels = io_write.to_preview(array, **preview_settings(kind, metadata, image_range))
         if pixels.ndim == 2:
             pixels = np.repeat(pixels[..., None], 3, axis=-1)
         pixels = np.repeat(np.repeat(pixels, zoom, axis=0), zoom, axis=1)
-        strip = np.full((LABEL_HEIGHT, pixels.shape[1], 3), 255, np.uint8)
-        cv2.putText(strip, title, (4, LABEL_HEIGHT - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-        tiles.append(np.concatenate([strip, pixels]))
-    gap = np.full((tiles[0].shape[0], GAP, 3), 255, np.uint8)
-    row = [tiles[0]]
-    for tile in tiles[1:]:
-        row += [gap, tile]
-    return np.concatenate(row, axis=1)
+    strip = np.full((LABEL_HEIGHT, pixels.shape[1], 3), WHITE, np.uint8)
+    cv2.putText(strip, title, (4, LABEL_HEIGHT - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([strip, pixels])
+
+
+def _pad(tile, height, width):
+    out = np.full((height, width, 3), WHITE, np.uint8)
+    out[:tile.shape[0], :tile.shape[1]] = tile
+    return out
+
+
+def montage(panels, metadata, image_range=None, zoom=1):
+    """One RGB picture of titled panels, in a row or in rows (the demo's overviews).
+
+    Parameters
+    ----------
+    panels : list of (str, str, ndarray), or a list of such lists (rows)
+        ``(title, kind, array)``; ``kind`` as in :func:`write_outputs`, or
+        ``"rgb"`` for a uint8 picture shown as it is (not enlarged). Tiles
+        of unequal size are padded with white.
+    metadata : dict
+        ``threshold`` and ``max_level`` scale the Cv and level panels.
+    image_range : (float, float), optional
+        Range of the ``"image"`` panels.
+    zoom : int
+        Whole-number enlargement of the other panels, nearest neighbour.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3), uint8
+
+    Examples
+    --------
+    >>> tiles = [("a", "image", np.zeros((4, 4))), ("b", "mask", np.ones((4, 4), bool))]
+    >>> montage([tiles, tiles[:1]], {}, zoom=2).shape
+    (66, 22, 3)
+    """
+    rows = panels if panels and isinstance(panels[0], list) else [panels]
+    tiles = [[_panel(*panel, metadata, image_range, zoom) for panel in row] for row in rows]
+    height = max(tile.shape[0] for row in tiles for tile in row)
+    width = max(tile.shape[1] for row in tiles for tile in row)
+    gap = np.full((height, GAP, 3), WHITE, np.uint8)
+    lines = []
+    for row in tiles:
+        line = [_pad(row[0], height, width)]
+        for tile in row[1:]:
+            line += [gap, _pad(tile, height, width)]
+        lines.append(np.concatenate(line, axis=1))
+    full = max(line.shape[1] for line in lines)
+    lines = [_pad(line, height, full) for line in lines]
+    between = np.full((GAP, full, 3), WHITE, np.uint8)
+    out = [lines[0]]
+    for line in lines[1:]:
+        out += [between, line]
+    return np.concatenate(out)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["sweep_costs", "wls_rows", "box_mean_stack"]
+__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows"]
 
 
 @njit(cache=True, inline="always")
@@ -320,3 +320,115 @@ def box_mean_stack(images, radius, out):
             inv = 1.0 / (min(y + radius, n_rows - 1) - max(y - radius, 0) + 1)
             for x in range(n_cols):
                 out[k, y, x] = acc[x] * inv
+
+
+@njit(cache=True, inline="always")
+def _box_plane(src, radius, tmp, dst):
+    """Mean over the ``(2 radius + 1)^2`` square around every pixel of ``src (h, w)``, the window cut at
+    the borders (as :func:`box_mean_stack`), into ``dst``; ``tmp`` is scratch of the same shape."""
+    n_rows, n_cols = src.shape
+    for y in range(n_rows):
+        acc = 0.0
+        for x in range(min(radius, n_cols)):
+            acc += src[y, x]
+        for x in range(n_cols):
+            if x + radius < n_cols:
+                acc += src[y, x + radius]
+            if x - radius - 1 >= 0:
+                acc -= src[y, x - radius - 1]
+            tmp[y, x] = acc / (min(x + radius, n_cols - 1) - max(x - radius, 0) + 1)
+    acc_row = np.zeros(n_cols)  # the vertical pass row by row (contiguous memory)
+    for y in range(min(radius, n_rows)):
+        for x in range(n_cols):
+            acc_row[x] += tmp[y, x]
+    for y in range(n_rows):
+        if y + radius < n_rows:
+            for x in range(n_cols):
+                acc_row[x] += tmp[y + radius, x]
+        if y - radius - 1 >= 0:
+            for x in range(n_cols):
+                acc_row[x] -= tmp[y - radius - 1, x]
+        inv = 1.0 / (min(y + radius, n_rows - 1) - max(y - radius, 0) + 1)
+        for x in range(n_cols):
+            dst[y, x] = acc_row[x] * inv
+
+
+@njit(cache=True, inline="always")
+def _up_index(i, n_in):
+    """Linear upsampling by 2 (sample centres at half pixels): the two source samples of output ``i`` and
+    the weight of the second."""
+    where = (i + 0.5) / 2.0 - 0.5
+    low = int(np.floor(where))
+    low = min(max(low, 0), n_in - 1)
+    high = min(low + 1, n_in - 1)
+    frac = min(max(where - low, 0.0), 1.0)
+    return low, high, frac
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def guided_windows(stack, y0, x0, guide, channels, mean, inverse, radius, out):
+    """The fast guided filter (coefficients at half resolution) of every image of ``stack (m, h, w)``,
+    the window of the full image at even offsets ``(y0, x0)``, one image per thread.
+
+    ``guide (Y, X, C)``: the full-resolution guide; ``channels``, ``mean`` ``(C, y, x)``: the guide at
+    half resolution and its box mean; ``inverse (y, x, C, C)``: the inverse of its regularised local
+    covariance; ``radius``: the box radius at half resolution. Same result as
+    ``napari_lfalias.disparity._GuidedFilter.window`` (the numpy reference).
+    """
+    m, height, width = stack.shape
+    n_ch = channels.shape[0]
+    hs, ws = (height + 1) // 2, (width + 1) // 2
+    ys, xs = y0 // 2, x0 // 2
+    for j in prange(m):
+        small = np.empty((hs, ws), np.float32)
+        for y in range(hs):
+            ya, yb = 2 * y, min(2 * y + 1, height - 1)
+            for x in range(ws):
+                xa, xb = 2 * x, min(2 * x + 1, width - 1)
+                small[y, x] = 0.25 * (stack[j, ya, xa] + stack[j, yb, xa] + stack[j, ya, xb] + stack[j, yb, xb])
+        tmp = np.empty((hs, ws), np.float32)
+        mean_p = np.empty((hs, ws), np.float32)
+        _box_plane(small, radius, tmp, mean_p)
+        cov = np.empty((n_ch, hs, ws), np.float32)
+        product = np.empty((hs, ws), np.float32)
+        for c in range(n_ch):
+            for y in range(hs):
+                for x in range(ws):
+                    product[y, x] = small[y, x] * channels[c, ys + y, xs + x]
+            _box_plane(product, radius, tmp, cov[c])
+            for y in range(hs):
+                for x in range(ws):
+                    cov[c, y, x] -= mean[c, ys + y, xs + x] * mean_p[y, x]
+        coef = np.empty((n_ch + 1, hs, ws), np.float32)  # a_0 .. a_{C-1}, b
+        for y in range(hs):
+            for x in range(ws):
+                b = mean_p[y, x]
+                for c in range(n_ch):
+                    a = 0.0
+                    for d in range(n_ch):
+                        a += inverse[ys + y, xs + x, c, d] * cov[d, y, x]
+                    coef[c, y, x] = a
+                    b -= a * mean[c, ys + y, xs + x]
+                coef[n_ch, y, x] = b
+        smooth = np.empty((n_ch + 1, hs, ws), np.float32)
+        for c in range(n_ch + 1):
+            _box_plane(coef[c], radius, tmp, smooth[c])
+        x_lo = np.empty(width, np.int64)
+        x_hi = np.empty(width, np.int64)
+        x_frac = np.empty(width, np.float32)
+        for x in range(width):
+            x_lo[x], x_hi[x], x_frac[x] = _up_index(x, ws)
+        row = np.empty((n_ch + 1, width), np.float32)
+        for y in range(height):
+            ya, yb, fy = _up_index(y, hs)
+            for c in range(n_ch + 1):  # the coefficients interpolated to this row, then along it
+                for x in range(ws):
+                    tmp[0, x] = smooth[c, ya, x] * (1 - fy) + smooth[c, yb, x] * fy
+                for x in range(width):
+                    fx = x_frac[x]
+                    row[c, x] = tmp[0, x_lo[x]] * (1 - fx) + tmp[0, x_hi[x]] * fx
+            for x in range(width):
+                value = row[n_ch, x]
+                for c in range(n_ch):
+                    value += row[c, x] * guide[y0 + y, x0 + x, c]
+                out[j, y, x] = value

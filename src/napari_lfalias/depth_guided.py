@@ -108,17 +108,13 @@ class DepthGuide:
     def estimate(self):
         """The disparity and its confidence: ``(disparity (Y, X), confidence (Y, X))``."""
         if self._estimate is None:
-            from .baselines import _disparity_map
-            from .disparity import DisparityEstimate, estimate_disparity
+            from .disparity import disparity_and_confidence, estimate_disparity
 
             given = self._given
             if given is None:
                 given = estimate_disparity(self.lf)
-            if isinstance(given, DisparityEstimate):
-                self._estimate = (given.disparity, given.confidence)
-            else:
-                disparity = _disparity_map(given, self.lf.image_shape).astype(np.float32)
-                self._estimate = (disparity, np.ones(disparity.shape, np.float32))
+            disparity, confidence = disparity_and_confidence(given, self.lf.image_shape)
+            self._estimate = (disparity.astype(np.float32), confidence)
         return self._estimate
 
     @property

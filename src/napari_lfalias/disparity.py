@@ -95,6 +95,8 @@ IN_FOCUS_SHARE = 0.4
 TEXTURE_FLOOR = 1e-5
 #: ... and the energy below which a patch is too flat to tell whether it is in focus.
 TEXTURE_MIN = 1e-4
+#: Radius (px) of the patch whose texture energy the focus test measures.
+FOCUS_RADIUS = 1
 #: Regularisation of the guided filter (guide normalised to [0, 1]).
 GUIDE_EPS = 1e-4
 
@@ -121,6 +123,30 @@ class DisparityEstimate:
     confidence: np.ndarray
     disparity_range: tuple
     params: dict = field(default_factory=dict)
+
+
+def disparity_and_confidence(disparity, shape):
+    """A given disparity as ``(disparity float64 (Y, X), confidence float32 (Y, X))``, checked.
+
+    ``disparity`` is a :class:`DisparityEstimate` (its confidence is kept)
+    or an array (trusted everywhere: confidence 1).
+
+    Raises
+    ------
+    ParameterError
+        For a map not of ``shape``, not real, or holding NaN/Inf, or a
+        confidence outside [0, 1].
+    """
+    from .baselines import _disparity_map
+
+    if isinstance(disparity, DisparityEstimate):
+        values = _disparity_map(disparity.disparity, shape)
+        confidence = np.asarray(disparity.confidence)
+        if confidence.shape != values.shape or not np.all((confidence >= 0) & (confidence <= 1)):
+            raise ParameterError(f"disparity.confidence must be a {values.shape} array in [0, 1]")
+        return values, np.ascontiguousarray(confidence, np.float32)
+    values = _disparity_map(disparity, shape)
+    return values, np.ones(values.shape, np.float32)
 
 
 def _kernels():
@@ -310,6 +336,15 @@ class _GuidedFilter:
         Pixels within the filter's reach of a window edge that is not an
         image edge see a cut window; callers keep only the inner part.
         """
+        stack = np.ascontiguousarray(stack, np.float32)
+        out = np.empty_like(stack)
+        _run("guided_windows", stack, int(y0), int(x0), np.ascontiguousarray(self.guide),
+             np.ascontiguousarray(self.channels, np.float32), np.ascontiguousarray(self.mean, np.float32),
+             np.ascontiguousarray(self.inverse), int(self.radius), out)
+        return out
+
+    def window_numpy(self, stack, y0, x0):
+        """:meth:`window` in plain numpy (the reference the kernel is tested against)."""
         n_ch = self.channels.shape[0]
         height, width = stack.shape[1:]
         ys = slice(y0 // 2, y0 // 2 + -(-height // 2))
@@ -650,8 +685,7 @@ class FocusTest:
         lum, self.valid = _luminance_views(lf)
         self.features = _features(lum)
         reference = self.features[_reference_views(self.positions)].mean(axis=0)  # (K, Y, X)
-        radius = 2
-        energy = _box(np.square(reference - _box(reference, radius)), radius).sum(axis=0)
+        energy = _box(np.square(reference - _box(reference, FOCUS_RADIUS)), FOCUS_RADIUS).sum(axis=0)
         self.tolerance = IN_FOCUS_COST * np.maximum(energy, TEXTURE_FLOOR)
         self.textured = energy >= TEXTURE_MIN  # a flat patch looks the same in or out of focus
 

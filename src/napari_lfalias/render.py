@@ -48,6 +48,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from . import _validate
 from .errors import ParameterError
@@ -123,23 +124,44 @@ def _bins(disparity, slope, spacing, max_bins):
     return edges, centres, taps
 
 
-def _in_focus_colour(stack, bins, taps):
-    """The colour of the in-focus surface at each pixel, from the views whose sample shows it.
+def _in_focus_colour(stack, bins, taps, order, occluders):
+    """The colour of the in-focus background at each pixel, from the views whose sample shows it.
 
-    Only where at least :data:`FILL_SHARE` of the views (by weight) show an
-    in-focus surface: an in-focus background partly hidden by an occluder's
-    blur, not a stray sample.
+    Only in-focus surfaces behind a clearly nearer one count (what an
+    occluder's blurred edge uncovers is the background it hides; what a
+    defocused background leaves uncovered behind an in-focus occluder is
+    more of that background, left to the normalisation), and only where
+    at least :data:`FILL_SHARE` of the views (by weight) show one: not a
+    stray sample.
 
     Returns ``(fill (Y, X, C) float32, has_fill (Y, X) bool)``.
     """
-    sharp = np.flatnonzero(~np.any(taps != 0, axis=1))
-    shows = np.isin(bins, sharp) & (stack.weights > 0)
+    sharp = ~np.any(taps != 0, axis=1)
+    behind = np.zeros(len(taps), bool)
+    behind[order] = occluders >= 0
+    shows = np.isin(bins, np.flatnonzero(sharp & behind)) & (stack.weights > 0)
     weight = np.where(shows, stack.weights, 0).astype(np.float32)
     total = weight.sum(axis=0)
     colour = np.einsum("nyx,nyxc->yxc", weight, stack.values)
     has_fill = total >= FILL_SHARE * np.maximum(stack.weights.sum(axis=0), 1e-6)
     np.divide(colour, total[..., None], out=colour, where=has_fill[..., None])
     return np.ascontiguousarray(colour, np.float32), has_fill
+
+
+def _with_mixed_edges(disparity, slope, gap):
+    """``disparity`` with the pixels on an occluding edge given to the side sharper at ``slope``.
+
+    A pixel on the edge of an occluder mixes the occluder's colour with
+    the background's. Whichever side it is counted to, its colour is spread
+    by that side's blur; counted to the more blurred side, the other side's
+    share turns into a bright or dark fringe. Counted to the sharper side
+    it stays where it is, as it does in the dense aperture.
+    """
+    low = ndimage.minimum_filter(disparity, size=3)
+    high = ndimage.maximum_filter(disparity, size=3)
+    sharper = np.where(np.abs(low - slope) <= np.abs(high - slope), low, high)
+    edge = (high - low >= gap) & (np.abs(sharper - slope) < np.abs(disparity - slope))
+    return np.where(edge, sharper, disparity)
 
 
 def _occluders(ordered_centres, gap):
@@ -181,6 +203,7 @@ def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first
     disparity = np.ascontiguousarray(disparity, np.float64)
     confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
     confidence = np.ascontiguousarray(confidence, np.float32)
+    disparity = _with_mixed_edges(disparity, float(slope), OCCLUSION_GAP_PX / spacing)
     n = lf.n_views
     shape = lf.image_shape
     warped = np.empty((n,) + shape, np.float64)
@@ -193,7 +216,7 @@ def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first
     stack = shift_views(lf, slope)
     order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
     occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-    fill, has_fill = _in_focus_colour(stack, bins, taps)
+    fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders)
     chunks = 4
     num = np.zeros((chunks,) + shape + (lf.n_channels,), np.float32)
     den, blurred, trust = (np.zeros((chunks,) + shape, np.float32) for _ in range(3))
@@ -249,20 +272,17 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
     >>> image.shape
     (64, 64, 3)
     """
-    from .baselines import _disparity_map, _larger_is_nearer
-    from .disparity import DisparityEstimate, estimate_disparity
+    from .baselines import _larger_is_nearer
+    from .disparity import disparity_and_confidence, estimate_disparity
 
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     lf = lf.compute() if lf.is_lazy else lf
     slope = _validate.finite_float("slope", slope)
     _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
-    confidence = None
     if disparity is None:
         disparity = estimate_disparity(lf)
-    if isinstance(disparity, DisparityEstimate):
-        disparity, confidence = disparity.disparity, disparity.confidence
-    disparity = _disparity_map(disparity, lf.image_shape)
+    disparity, confidence = disparity_and_confidence(disparity, lf.image_shape)
     if nearer == "auto":
         larger_first = _larger_is_nearer(np.ascontiguousarray(lf.views()),
                                          np.ascontiguousarray(lf.flat_positions()), disparity)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows"]
+__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets"]
 
 
 @njit(cache=True, inline="always")
@@ -432,3 +432,33 @@ def guided_windows(stack, y0, x0, guide, channels, mean, inverse, radius, out):
                 for c in range(n_ch):
                     value += row[c, x] * guide[y0 + y, x0 + x, c]
                 out[j, y, x] = value
+
+
+@njit(cache=True, parallel=True)
+def subslope_offsets(cost, best, radius, out):
+    """The sub-step offset (in steps, within +-0.5) of the minimum of every pixel's cost curve: the
+    vertex of the parabola through its costs at ``best - 1``, ``best`` and ``best + 1``, each
+    averaged over the ``(2 radius + 1)^2`` window (non-finite costs skipped); 0 where the three do not
+    bracket a minimum."""
+    m, n_rows, n_cols = cost.shape
+    for y in prange(n_rows):
+        for x in range(n_cols):
+            b = best[y, x]
+            out[y, x] = 0.0
+            if b < 1 or b > m - 2:
+                continue
+            sums = np.zeros(3)
+            counts = np.zeros(3)
+            for yy in range(max(0, y - radius), min(n_rows, y + radius + 1)):
+                for xx in range(max(0, x - radius), min(n_cols, x + radius + 1)):
+                    for k in range(3):
+                        value = cost[b - 1 + k, yy, xx]
+                        if np.isfinite(value):
+                            sums[k] += value
+                            counts[k] += 1.0
+            if counts[0] == 0 or counts[1] == 0 or counts[2] == 0:
+                continue
+            c0, c1, c2 = sums[0] / counts[0], sums[1] / counts[1], sums[2] / counts[2]
+            curvature = c0 - 2.0 * c1 + c2
+            if curvature > 1e-9:
+                out[y, x] = min(max(0.5 * (c0 - c2) / curvature, -0.5), 0.5)

@@ -274,7 +274,8 @@ def _disparity_map(disparity, shape=None):
         raise ParameterError(f"disparity must be a (Y, X) array, got shape {disparity.shape}")
     if shape is not None and disparity.shape != tuple(shape):
         raise ParameterError(f"disparity must have the views' shape (Y, X) = {tuple(shape)}, got {disparity.shape}")
-    if disparity.dtype == np.bool_ or not np.issubdtype(disparity.dtype, np.number):
+    if (disparity.dtype == np.bool_ or not np.issubdtype(disparity.dtype, np.number)
+            or np.issubdtype(disparity.dtype, np.complexfloating)):
         raise ParameterError(f"disparity must be a real array, got dtype {disparity.dtype}")
     disparity = disparity.astype(np.float64)
     if not np.all(np.isfinite(disparity)):

@@ -183,10 +183,12 @@ class DepthGuide:
         return score
 
     def blend(self, naive, rendered, mask):
-        """``naive`` with ``rendered`` in the ``mask`` pixels, the edge softened over about a pixel."""
+        """``naive`` with ``rendered`` in the ``mask`` pixels, the edge softened over about a pixel
+        inside the mask (every pixel outside it stays the naive refocus exactly)."""
         if not mask.any():
             return naive.copy()
         weight = ndimage.gaussian_filter(mask.astype(np.float32), 0.7)
-        weight = np.where(mask, np.maximum(weight, 0.5), weight)
-        weight[weight < 0.02] = 0.0
-        return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)
+        weight = np.where(mask, np.maximum(weight, 0.5), 0.0).astype(np.float32)
+        out = naive.copy()
+        out[mask] += weight[mask][:, None] * (rendered[mask] - naive[mask])
+        return out

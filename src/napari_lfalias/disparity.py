@@ -164,11 +164,17 @@ def _run(name, *args):
 
 def _luminance_views(lf):
     """Luminance ``(n, Y, X)`` float32 scaled so the bright level is 1, and the sample weights ``(n, Y, X)``
-    or None."""
+    relative to the largest at each pixel, or None."""
     views = lf.views()
     lum = np.array(views[..., 0] if lf.n_channels == 1 else views @ REC709, np.float32)  # a copy: scaled below
     weights = lf.flat_weights()
-    valid = None if weights is None else np.ascontiguousarray(weights, np.float32)
+    valid = None
+    if weights is not None:
+        # relative to the best view at each pixel: a calibrated vignette lowers every view's weight
+        # towards the image corners, and the views there still see the scene
+        top = weights.max(axis=0)
+        valid = np.divide(weights, top, out=np.zeros(weights.shape, np.float32), where=top > 0)
+        valid = np.ascontiguousarray(valid, np.float32)
     seen = lum if valid is None else lum[valid > 0.5]
     scale = float(np.percentile(seen, 99.5)) if seen.size else 0.0
     if not math.isfinite(scale) or scale <= 0:
@@ -387,12 +393,24 @@ def _aggregate(relative, needed, guided, radius):
     return out
 
 
-def _winner(aggregated, slopes, step):
-    """Sub-step argmin of the aggregated cost (parabola) and the confidence of the choice."""
+def _winner(aggregated, slopes, step, cost=None):
+    """Sub-step argmin of the aggregated cost and the confidence of the choice.
+
+    The sub-step offset is the vertex of a parabola through the costs
+    around the winner: the raw ``cost`` volume's over a 3x3 window when
+    given (the aggregated cost is capped, :data:`COST_CAP`, and flattens
+    the curve's sides: its vertex snaps to the grid), else the aggregated.
+    """
     m = len(slopes)
     best = np.argmin(aggregated, axis=0)
     inner = np.clip(best, 1, max(m - 2, 1))
-    if m >= 3:
+    if cost is not None and m >= 3:
+        c1 = np.take_along_axis(aggregated, best[None], 0)[0]
+        offset = np.empty(best.shape, np.float32)
+        _run("subslope_offsets", np.ascontiguousarray(cost, np.float32), np.ascontiguousarray(best, np.int64), 1,
+             offset)
+        disparity = slopes[best] + offset * step
+    elif m >= 3:
         c0 = np.take_along_axis(aggregated, (inner - 1)[None], 0)[0]
         c1 = np.take_along_axis(aggregated, inner[None], 0)[0]
         c2 = np.take_along_axis(aggregated, (inner + 1)[None], 0)[0]
@@ -634,7 +652,7 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     yield (3, 5, "sweep")
     clock = time.perf_counter()
     aggregated = _aggregate(_relative_cost(cost), needed, _GuidedFilter(guide, radius), radius)
-    disparity, confidence = _winner(aggregated, slopes, step)
+    disparity, confidence = _winner(aggregated, slopes, step, cost)
     seconds["aggregate"] = time.perf_counter() - clock
     yield (4, 5, "aggregation")
 
@@ -670,13 +688,16 @@ class FocusTest:
     lf : LightField
         The light field (its luminance features are made once and kept).
 
+    The test is conservative: a view resampled between pixels differs from
+    the centre by its interpolation error, so on a textured plane in focus
+    at a fractional disparity about half the pixels pass, and almost none
+    out of focus (a missed pixel keeps the estimate's disparity).
+
     Examples
     --------
-    >>> from napari_lfalias.synthetic import brick_room
-    >>> scene = brick_room(n_views=4, size=64, seed=0)
-    >>> test = FocusTest(scene.lightfield)
-    >>> on_cube = scene.disparity == 4.0
-    >>> bool(test(4.0)[on_cube].mean() > 0.9), bool(test(-4.0)[on_cube].mean() < 0.1)
+    >>> from napari_lfalias.synthetic import textured_plane
+    >>> test = FocusTest(textured_plane(n_views=5, size=64, disparity=1.25).lightfield)
+    >>> bool(test(1.25).mean() > 0.3), bool(test(-1.0).mean() < 0.01)
     (True, True)
     """
 

@@ -50,7 +50,7 @@ def test_a_textured_plane_is_estimated_within_0_05_px(disparity):
 @pytest.mark.parametrize("disparity", [1.25, 0.3, -1.3, 2.0])
 def test_a_textured_plane_is_found_to_within_half_a_sweep_step(disparity):
     # the coarse guard of the test above: the right slope of the sweep, sure of itself (measured: median
-    # error <= 0.125, 95th percentile <= 0.13, median confidence 0.81)
+    # error 0.006, 0.075, 0.074, 0.000; 95th percentile at most 0.076; median confidence 0.79 to 0.81)
     estimate = lfa.estimate_disparity(_plane(disparity))
     error = np.abs(estimate.disparity[INTERIOR] - disparity)
     assert np.median(error) <= 0.15

@@ -1,0 +1,109 @@
+"""The accuracy benchmark's own pieces (issue #11): the sub-grids of a real array span the same aperture as
+the full grid, the dense reference of a synthetic scene converges, and no case hands the methods its ground
+truth.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import napari_lfalias as lfa
+from napari_lfalias.baselines import view_spacing
+from napari_lfalias.synthetic import layered_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import accuracy_cases  # noqa: E402  (benchmarks/ is not a package; the benchmarks import it the same way)
+
+#: The sub-grids of a 9x9 array the benchmark keeps (rows = columns).
+SUB_GRIDS = ((1, 4, 7), (0, 2, 4, 6, 8))
+
+
+def _assert_spans_the_same_aperture(sparse, full):
+    """The sub-grid is regular, centred like the full grid, and its views' cells tile the full grid's
+    aperture: they overhang it by at most half the extra spacing on each side (exactly none for 1, 4, 7)."""
+    sub, whole = sparse.reshape(-1, 2), full.reshape(-1, 2)
+    step, full_step = view_spacing(sparse), view_spacing(full)
+    assert step / full_step == pytest.approx(round(step / full_step))  # a whole number of full steps
+    for axis in (0, 1):
+        values = np.unique(np.round(sub[:, axis], 9))
+        np.testing.assert_allclose(np.diff(values), step)  # regular
+    np.testing.assert_allclose(sub.mean(axis=0), whole.mean(axis=0), atol=1e-9)  # same centre
+    low, high = sub.min(axis=0) - step / 2, sub.max(axis=0) + step / 2
+    full_low, full_high = whole.min(axis=0) - full_step / 2, whole.max(axis=0) + full_step / 2
+    overhang = (step - full_step) / 2
+    assert np.all(low <= full_low + 1e-9) and np.all(high >= full_high - 1e-9)
+    assert np.all(full_low - low <= overhang + 1e-9) and np.all(high - full_high <= overhang + 1e-9)
+    return low, high, full_low, full_high
+
+
+@pytest.mark.parametrize("keep", SUB_GRIDS, ids=["3x3", "5x5"])
+def test_a_sub_grid_spans_the_aperture_of_the_full_grid(keep):
+    full = lfa.regular_positions(9, 9)
+    sparse = full[list(keep)][:, list(keep)]
+    low, high, full_low, full_high = _assert_spans_the_same_aperture(sparse, full)
+    if keep == (1, 4, 7):
+        np.testing.assert_allclose(low, full_low)
+        np.testing.assert_allclose(high, full_high)
+    else:  # the outermost views are the full grid's
+        np.testing.assert_allclose(sparse.reshape(-1, 2).min(axis=0), full.reshape(-1, 2).min(axis=0))
+        np.testing.assert_allclose(sparse.reshape(-1, 2).max(axis=0), full.reshape(-1, 2).max(axis=0))
+
+
+def test_the_benchmark_sub_grids_of_hci_antinous_span_its_aperture(lf_data):
+    if not (lf_data / "hci_antinous").is_dir():
+        pytest.skip("hci_antinous is not in the real data")
+    cases = accuracy_cases.hci_cases()
+    full = lfa.regular_positions(9, 9)
+    assert [case.lightfield.grid_shape for case in cases] == [(3, 3), (5, 5)]
+    for case, keep in zip(cases, SUB_GRIDS):
+        # the rows and columns of the 9x9 array, where it put them
+        np.testing.assert_array_equal(case.lightfield.positions, full[list(keep)][:, list(keep)])
+        _assert_spans_the_same_aperture(case.lightfield.positions, full)
+        assert "disparity" not in case.lightfield.meta and "disparity_range" not in case.lightfield.meta
+
+
+# -- the dense reference ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def three_layers():
+    # the benchmark's first case, small: tiles before lines before bricks
+    return layered_scene([(5.0, "tiles", (0.2, 0.6, 0.15, 0.5)), (1.0, "lines", (0.45, 0.85, 0.5, 0.9)),
+                          (-4.0, "bricks", None)], n_views=4, size=64, seed=1)
+
+
+@pytest.mark.parametrize("slope", [1.0, -4.0, 0.5])
+def test_the_dense_reference_converges_as_its_rays_grow(three_layers, slope):
+    exact = three_layers.reference(slope, samples_per_view=64, interpolation="exact")
+    errors = [float(np.abs(three_layers.reference(slope, samples_per_view=m, interpolation="exact") - exact).max())
+              for m in (1, 2, 4, 8)]
+    # the midpoint rule: the error falls about 4x per doubling (measured 0.057, 0.0055, 0.0013, 0.0003 at slope 1)
+    assert all(coarser > 2 * finer for coarser, finer in zip(errors, errors[1:])), errors
+    assert errors[-1] < 1e-3
+    # the benchmark's reference (the default sampling) is converged
+    default = three_layers.reference(slope, interpolation="exact")
+    assert three_layers.aperture_samples(slope) >= 16
+    assert float(np.abs(default - exact).max()) < 2e-4  # measured <= 5e-5
+
+
+def test_a_synthetic_case_judges_against_the_converged_reference_and_hides_its_truth(three_layers):
+    case = accuracy_cases._synthetic("three layers, small", "tune", three_layers, [-4.0])
+    assert "disparity" not in case.lightfield.meta and "disparity_range" not in case.lightfield.meta
+    np.testing.assert_array_equal(case.lightfield.data, three_layers.lightfield.data)
+    np.testing.assert_array_equal(case.disparity, three_layers.disparity)
+    exact = three_layers.reference(-4.0, samples_per_view=64, interpolation="exact")
+    assert float(np.abs(case.reference(-4.0) - exact).max()) < 2e-4  # measured 9e-6
+    # the truth compares the sparse views' own refocus with it: one aperture sample per view, exactly evaluated
+    naive = lfa.refocus(case.lightfield, -4.0)
+    np.testing.assert_allclose(case.comb(-4.0), naive, atol=1e-6)  # whole-pixel shifts: the same image
+    aliased = case.truth(-4.0, naive)
+    assert 0.05 < aliased.mean() < 0.5  # measured 0.12: around the defocused tiles and lines in front
+
+
+def test_a_case_seen_through_a_camera_keeps_the_ideal_reference(three_layers):
+    case = accuracy_cases._synthetic("three layers, vignetted", "tune", three_layers, [1.0], vignetting=1.0,
+                                     read_noise=0.004, calibrated=True, seed=2)
+    assert case.lightfield.weights is not None  # what a decoder with a white image hands over
+    assert not np.array_equal(case.lightfield.data, three_layers.lightfield.data)
+    np.testing.assert_array_equal(case.reference(1.0), three_layers.reference(1.0, interpolation="exact"))

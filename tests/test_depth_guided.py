@@ -1,0 +1,235 @@
+"""Aliasing users can trust (issue #11): the default (disparity-guided) detection and reduction leave alone
+what is not aliased, real-camera artefacts are not aliasing, and the paper stays reachable exactly.
+"""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import napari_lfalias as lfa
+from napari_lfalias import _inputs, metrics, presets
+from napari_lfalias.errors import ParameterError
+from napari_lfalias.reduce import reduction_options
+from napari_lfalias.synthetic import brick_room, layered_scene, textureless_plane
+from napari_lfalias.synthetic.camera import capture
+
+from _accuracy_scenes import as_user_has_it
+
+SIZE = 64
+
+
+def _vignette(size=SIZE):
+    """The image corners (beyond the inscribed circle): where the fall-off of ``capture`` is strongest."""
+    y, x = np.mgrid[:size, :size]
+    return np.hypot(y - (size - 1) / 2, x - (size - 1) / 2) > size / 2
+
+
+# -- nothing aliased: the naive refocus, exactly -------------------------------------------------------
+
+@pytest.mark.parametrize("disparity", [1.5, -2.0, 0.3])
+def test_an_in_focus_light_field_comes_back_as_the_naive_refocus(disparity):
+    scene = layered_scene([(disparity, "noise", None)], n_views=5, size=SIZE, seed=2)
+    lf = as_user_has_it(scene.lightfield)
+    result = lfa.reduce_aliasing(lf, disparity)
+    np.testing.assert_array_equal(result.image, lfa.refocus(lf, disparity))
+    assert not result.level.any()
+
+
+def test_a_light_field_without_texture_comes_back_as_the_naive_refocus():
+    lf = lfa.LightField(np.full((4, 4, 48, 48, 3), 0.4, np.float32))
+    detector = lfa.AliasingDetector(lf)  # one disparity estimate for every call
+    for slope in (0.0, 1.5):
+        result = lfa.reduce_aliasing(lf, slope, detector=detector)
+        np.testing.assert_array_equal(result.image, lfa.refocus(lf, slope))
+        assert not result.level.any()
+        assert not detector.detect(slope).mask.any()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "a smooth texture out of focus (layered_scene([(d, 'smooth', None)], 5x5, 64 px, seed 0), no pixel aliased "
+    "by the ground truth) has pixels replaced at the default: d=2, slope 0: 2 pixels (rows 0-1), image changed "
+    "by up to 0.006, PSNR 78.2 -> 76.4 dB; d=-1.5, slope 1.5: 27 pixels (rows 0-7), changed by up to 0.015. "
+    "The rendering with the estimated disparity (off by 0.03-0.05 px near the border) differs from the naive "
+    "refocus there by more than T, and is no closer to the dense reference"))
+@pytest.mark.parametrize("disparity, slope", [(2.0, 0.0), (-1.5, 1.5)])
+def test_a_smooth_texture_out_of_focus_comes_back_as_the_naive_refocus(disparity, slope):
+    scene = layered_scene([(disparity, "smooth", None)], n_views=5, size=SIZE, seed=0)
+    lf = as_user_has_it(scene.lightfield)
+    naive = lfa.refocus(lf, slope)
+    assert not metrics.aliased_pixels(naive, scene.reference(slope)).any()  # nothing to reduce
+    result = lfa.reduce_aliasing(lf, slope)
+    np.testing.assert_array_equal(result.image, naive)
+
+
+# -- outside the replaced pixels: the naive refocus, exactly --------------------------------------------
+
+@pytest.fixture(scope="module")
+def room():
+    return as_user_has_it(brick_room(n_views=4, size=SIZE, seed=0).lightfield)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "the default reduction's soft edge (DepthGuide.blend: a Gaussian of sigma 0.7 px over the mask) changes "
+    "pixels it reports as kept: brick room 4x4, 64 px: slope 4: 698 pixels with level 0 changed, by up to 0.028; "
+    "slope -4: 849, up to 0.018; slope 0: 101, up to 0.005"))
+@pytest.mark.parametrize("slope", [4.0, -4.0, 0.0])
+def test_the_pixels_the_default_reduction_keeps_are_the_naive_refocus_exactly(room, slope):
+    result = lfa.reduce_aliasing(room, slope)
+    kept = result.level == 0
+    assert kept.any() and not kept.all()
+    np.testing.assert_array_equal(result.image[kept], lfa.refocus(room, slope)[kept])
+
+
+@pytest.mark.parametrize("slope", [4.0, -4.0, 0.0])
+def test_beyond_the_soft_edge_the_default_reduction_is_the_naive_refocus_exactly(room, slope):
+    result = lfa.reduce_aliasing(room, slope)
+    naive = lfa.refocus(room, slope)
+    np.testing.assert_array_equal(result.refocused, naive)
+    replaced = result.level > 0
+    assert replaced.any()
+    far = ~ndimage.binary_dilation(replaced, iterations=3)  # the blend reaches about 2 px
+    assert far.any()
+    np.testing.assert_array_equal(result.image[far], naive[far])
+    assert not np.array_equal(result.image[replaced], naive[replaced])
+
+
+# -- vignetting --------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def vignetted():
+    """A noise-textured plane at d=1 (5x5 views of 64 px): ideal, seen by a camera with sensor noise, and the
+    same with strong vignetting (corner views at a fifth of the light), calibrated and not."""
+    scene = layered_scene([(1.0, "noise", None)], n_views=5, size=SIZE, seed=3)
+    noise = {"read_noise": 0.004, "shot_noise": 0.01, "seed": 1}
+    return {
+        "ideal": as_user_has_it(scene.lightfield),
+        "noisy": as_user_has_it(capture(scene.lightfield, **noise)),
+        "calibrated": as_user_has_it(capture(scene.lightfield, vignetting=1.5, calibrated=True, **noise)),
+        "calibrated, no noise": as_user_has_it(capture(scene.lightfield, vignetting=1.5, calibrated=True)),
+        "uncalibrated": as_user_has_it(capture(scene.lightfield, vignetting=1.5, **noise)),
+    }
+
+
+@pytest.mark.parametrize("slope", [1.0, -1.0], ids=["in focus", "out of focus"])
+def test_a_calibrated_vignette_does_not_darken_the_refocus(vignetted, slope):
+    corner = _vignette()
+    truth = lfa.refocus(vignetted["ideal"], slope)[corner].mean()
+    for name in ("calibrated", "calibrated, no noise"):
+        lf = vignetted[name]
+        assert lf.weights is not None and lf.weights.min() < 0.1
+        # measured: 0.999 to 1.005
+        assert lfa.refocus(lf, slope)[corner].mean() / truth == pytest.approx(1.0, abs=0.01)
+    # what the weights do: the same views without them lose 85 % of the light there
+    assert lfa.refocus(vignetted["uncalibrated"], slope)[corner].mean() < 0.5 * truth
+
+
+def test_a_calibrated_vignette_does_not_raise_the_analytic_cv(vignetted):
+    corner = _vignette()
+
+    def cv(name, slope):
+        return lfa.detect_aliasing(vignetted[name], slope, method="analytic")
+
+    # in focus: the views agree, only the noise (amplified where the white image divided it) is left
+    # (measured: mean Cv 0.0043 in the vignette, 0.0010 without vignetting; 0.3 % of it flagged)
+    calibrated = cv("calibrated", 1.0)
+    assert calibrated.cv[corner].mean() <= 0.01
+    assert calibrated.mask[corner].mean() <= 0.02
+    assert not cv("calibrated, no noise", 1.0).mask.any()
+    # out of focus: no more than the same camera without vignetting (measured: 0.0189 against 0.0191,
+    # 33 % flagged against 37 %)
+    calibrated, plain = cv("calibrated", -1.0), cv("noisy", -1.0)
+    assert calibrated.cv[corner].mean() <= plain.cv[corner].mean() + 0.002
+    assert calibrated.mask[corner].mean() <= plain.mask[corner].mean() + 0.01
+    # without the weights the vignette is flagged nearly everywhere
+    assert cv("uncalibrated", 1.0).mask[corner].mean() > 0.9
+
+
+@pytest.mark.parametrize("name", [
+    "calibrated, no noise",
+    pytest.param("calibrated", marks=pytest.mark.xfail(strict=True, reason=(
+        "the default (depth) detection flags 15 % of the vignette (10 % of the image) of an in-focus, "
+        "noise-textured plane with a calibrated vignette (capture(vignetting=1.5, calibrated=True, "
+        "read_noise=0.004, shot_noise=0.01)), none without the vignette; reduce_aliasing then loses 2.1 dB "
+        "(43.5 -> 41.4). Root cause: estimate_disparity with those weights (see test_disparity.py): median "
+        "error 1.1 px, and the in-focus checks do not hold against the amplified noise"))),
+])
+def test_a_calibrated_vignette_does_not_raise_the_default_score(vignetted, name):
+    corner = _vignette()
+    detection = lfa.detect_aliasing(vignetted[name], 1.0)
+    assert detection.params["method"] == "depth"
+    assert detection.mask[corner].mean() <= lfa.detect_aliasing(vignetted["noisy"], 1.0).mask[corner].mean() + 0.01
+    assert detection.mask.mean() <= 0.01
+
+
+# -- saturation --------------------------------------------------------------------------------------
+
+def _clipped_anywhere(lf):
+    """Pixels where some view recorded a clipped sample (the camera's value before calibration reached 1)."""
+    recorded = lf.data if lf.weights is None else lf.data * lf.weights[..., None]
+    return np.any(recorded >= 1.0 - 1e-6, axis=(0, 1, 4))
+
+
+@pytest.mark.parametrize("slope", [0.0, 2.0], ids=["wall in focus", "object in focus"])
+def test_saturated_views_are_not_flagged(slope):
+    # a bright wall over-exposed 4x: the central views clip, the darker corner views of the vignette do not,
+    # so after calibration the views disagree by up to 3x there
+    scene = textureless_plane(n_views=5, size=SIZE, seed=0, wall_colour=(0.8, 0.8, 0.75), object_disparity=2.0)
+    lf = as_user_has_it(capture(scene.lightfield, exposure=4.0, vignetting=1.5, calibrated=True))
+    clipped = _clipped_anywhere(lf)
+    assert clipped.mean() > 0.5
+    assert not lfa.detect_aliasing(lf, slope).mask[clipped].any()
+    result = lfa.reduce_aliasing(lf, slope)
+    np.testing.assert_array_equal(result.image[clipped], result.refocused[clipped])
+
+
+@pytest.mark.parametrize("method", [None, "analytic"])
+def test_clipped_highlights_out_of_focus_are_not_flagged(method):
+    # a smooth texture over-exposed until half of the samples clip, out of focus: nothing aliases
+    scene = layered_scene([(1.0, "smooth", None)], n_views=5, size=SIZE, seed=0)
+    lf = as_user_has_it(capture(scene.lightfield, exposure=2.2))
+    assert (lf.data >= 1.0).mean() > 0.4
+    assert not lfa.detect_aliasing(lf, -1.0, method=method).mask.any()
+
+
+# -- defaults and the paper's preset -----------------------------------------------------------------
+
+PAPER = {"method": "monte_carlo", "threshold": 0.02, "gamma": 0.2, "n_patterns": 100}
+
+
+def test_the_paper_preset_resolves_to_the_paper_exactly():
+    options = presets.detection_options(preset="paper")
+    assert {key: options[key] for key in PAPER} == PAPER
+    detection, max_level, screen = reduction_options(preset="paper")
+    assert {key: detection[key] for key in PAPER} == PAPER
+    assert (max_level, screen) == (3, 0.0)  # Eq. 8 as written, plain Poisson fusion
+    resolved = _inputs.resolved_options(preset="paper", method=None, threshold=None, gamma=None, n_patterns=None,
+                                        max_level=None, screen=None)
+    assert {key: resolved[key] for key in PAPER} == PAPER and resolved["screen"] == 0.0
+    # a parameter given explicitly wins over the preset
+    assert presets.detection_options(preset="paper", threshold=0.05)["threshold"] == 0.05
+    with pytest.raises(ParameterError, match="preset"):
+        presets.detection_options(preset="Paper")
+
+
+def test_the_paper_preset_computes_what_the_papers_parameters_compute(room):
+    by_preset = lfa.detect_aliasing(room, 4.0, preset="paper", seed=0)
+    assert by_preset.params == {**{k: PAPER[k] for k in ("method", "gamma", "n_patterns")}, "seed": 0}
+    assert by_preset.threshold == 0.02
+    spelled_out = lfa.detect_aliasing(room, 4.0, seed=0, **PAPER)
+    np.testing.assert_array_equal(by_preset.cv, spelled_out.cv)
+    reduced = lfa.reduce_aliasing(room, 4.0, preset="paper", seed=0)
+    assert all(d.params["method"] == "monte_carlo" and d.threshold == 0.02 for d in reduced.detections)
+    assert int(reduced.level.max()) <= 3
+    np.testing.assert_array_equal(
+        reduced.image, lfa.reduce_aliasing(room, 4.0, seed=0, max_level=3, screen=0.0, **PAPER).image)
+
+
+def test_the_default_method_is_depth(room):
+    assert presets.detection_options()["method"] == "depth"
+    assert _inputs.resolved_options(method=None, threshold=None)["method"] == "depth"
+    detection = lfa.detect_aliasing(room, 4.0)
+    assert detection.params["method"] == "depth" and detection.threshold == 0.02
+    detector = lfa.AliasingDetector(room)
+    np.testing.assert_array_equal(detection.cv, detector.detect(4.0, method="depth").cv)
+    reduced = lfa.reduce_aliasing(room, 4.0, detector=detector)
+    assert [d.params["method"] for d in reduced.detections] == ["depth"]

@@ -1,0 +1,186 @@
+"""antialiased_refocus: what a dense aperture records (issue #12), judged against the exact dense-aperture
+reference of synthetic scenes; in-focus scenes, no texture, bad disparities, inputs left alone.
+
+PSNR bounds are the values measured with the true disparity (``scene.reference(slope, interpolation="exact")``,
+its default aperture sampling), less about 2 dB of margin.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import napari_lfalias as lfa
+from napari_lfalias import metrics
+from napari_lfalias.disparity import DisparityEstimate
+from napari_lfalias.errors import LightFieldError, ParameterError
+from napari_lfalias.synthetic import brick_room, layered_scene
+from napari_lfalias.synthetic.camera import capture
+
+from _accuracy_scenes import as_user_has_it
+
+
+def _brick_room():
+    return brick_room(n_views=5, size=64, seed=0)
+
+
+def _tiles_behind_lines(n_views=4):
+    # the occluder has the smaller disparity: the occlusion order of the brick room reversed
+    return layered_scene([(-4.0, "lines", (0.3, 0.7, 0.2, 0.6)), (3.0, "tiles", None)], n_views=n_views, size=64,
+                         seed=14)
+
+
+def _judged(scene, slope):
+    """(naive, rendering with the true disparity, reference, truly aliased pixels)."""
+    lf = as_user_has_it(scene.lightfield)
+    naive = lfa.refocus(lf, slope)
+    rendering = lfa.antialiased_refocus(lf, slope, scene.disparity)
+    reference = scene.reference(slope, interpolation="exact")
+    return naive, rendering, reference, metrics.aliased_pixels(naive, reference)
+
+
+# -- against the dense reference ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("make, slope, least_psnr", [
+    # measured: overall 35.1 dB (naive 27.6); where aliased 34.5 (naive 26.0), 69 % of the pixels
+    (_brick_room, 4.0, 33.0),
+    # measured: overall 45.9 dB (naive 41.3); where aliased 46.3 (naive 37.3), 11 % of the pixels
+    (_brick_room, -4.0, 43.0),
+    # measured: overall 45.4 dB (naive 33.7); where aliased 44.2 (naive 28.8), 30 % of the pixels
+    (_tiles_behind_lines, 3.0, 43.0),
+], ids=["brick room, wall defocused", "brick room, cube defocused", "tiles in focus behind defocused lines"])
+def test_with_the_true_disparity_the_rendering_matches_the_dense_reference(make, slope, least_psnr):
+    naive, rendering, reference, aliased = _judged(make(), slope)
+    assert aliased.mean() > 0.05  # the naive refocus is visibly aliased
+    assert rendering.shape == naive.shape and rendering.dtype == np.float32
+    assert metrics.psnr(rendering, reference) >= least_psnr
+    assert metrics.psnr(rendering, reference) > metrics.psnr(naive, reference)
+    # far better where aliased: the issue's goal, naive + 6 dB (measured: +8.5, +9.0, +15.4 dB)
+    assert metrics.psnr(rendering, reference, mask=aliased) >= metrics.psnr(naive, reference, mask=aliased) + 6.0
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "with the true disparity, pixels next to an in-focus occluder whose background is defocused get a ring of "
+    "error 1-2 px wide around the occluder: brick room 5x5, 64 px, slope 4 (cube in focus): 37.0 dB on the "
+    "clean pixels against the naive 45.7; tiles behind lines 8x8, 64 px, slope -4 (lines in focus): 41.1 "
+    "against 43.9 on the clean pixels, 40.6 against 42.9 overall"))
+@pytest.mark.parametrize("make, slope", [(_brick_room, 4.0), (lambda: _tiles_behind_lines(8), -4.0)],
+                         ids=["brick room, cube in focus", "lines in focus before tiles, 8x8"])
+def test_with_the_true_disparity_the_rendering_keeps_the_clean_pixels(make, slope):
+    naive, rendering, reference, aliased = _judged(make(), slope)
+    clean = ~aliased
+    # the issue's goal: at most 0.3 dB below naive on the pixels that were not aliased
+    assert metrics.psnr(rendering, reference, mask=clean) >= metrics.psnr(naive, reference, mask=clean) - 0.3
+    assert metrics.psnr(rendering, reference) >= metrics.psnr(naive, reference)
+
+
+# -- in focus ----------------------------------------------------------------------------------------
+
+#: ``antialiased_refocus`` takes its in-focus pixels from its own shift-and-add (``shift_views(...).mean()``),
+#: :func:`napari_lfalias.refocus` sums in another order: the two differ by float32 rounding (measured: at
+#: most 1.2e-7 on values in [0, 1]).
+ROUNDING = 1e-6
+
+
+@pytest.mark.parametrize("disparity", [1.5, -2.0, 0.3])
+def test_an_in_focus_plane_comes_back_as_the_naive_refocus(disparity):
+    scene = layered_scene([(disparity, "noise", None)], n_views=5, size=64, seed=2)
+    lf = as_user_has_it(scene.lightfield)
+    naive = lfa.refocus(lf, disparity)
+    given = lfa.antialiased_refocus(lf, disparity, np.full(lf.image_shape, disparity))
+    estimated = lfa.antialiased_refocus(lf, disparity)
+    np.testing.assert_allclose(given, naive, rtol=0, atol=ROUNDING)
+    np.testing.assert_allclose(estimated, naive, rtol=0, atol=ROUNDING)
+
+
+def test_a_light_field_without_texture_renders_as_the_naive_refocus():
+    lf = lfa.LightField(np.full((4, 4, 48, 48, 3), 0.4, np.float32))
+    for slope in (0.0, 1.5):
+        np.testing.assert_allclose(lfa.antialiased_refocus(lf, slope), lfa.refocus(lf, slope), rtol=0, atol=ROUNDING)
+
+
+# -- bad disparities ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def room():
+    scene = brick_room(n_views=4, size=32, seed=0)
+    return as_user_has_it(scene.lightfield), scene.disparity
+
+
+def _bad_disparities(good):
+    return {
+        "one row short": good[:-1],
+        "transposed shape": np.zeros((32, 31)),
+        "an extra axis": good[..., None],
+        "flattened": good.ravel(),
+        "a number": 2.0,
+        "NaN": np.where(good > 0, np.nan, good),
+        "inf": np.where(good > 0, np.inf, good),
+        "-inf": np.where(good > 0, -np.inf, good),
+        "bool": good > 0,
+        "text": good.astype(str),
+        "objects": good.astype(object),
+    }
+
+
+USES_A_DISPARITY = {
+    "antialiased_refocus": lambda lf, disparity: lfa.antialiased_refocus(lf, 4.0, disparity),
+    "antialiased_refocus (an estimate)": lambda lf, disparity: lfa.antialiased_refocus(
+        lf, 4.0, DisparityEstimate(np.asarray(disparity), np.ones(lf.image_shape, np.float32), (-4.0, 4.0))),
+    "reduce_aliasing": lambda lf, disparity: lfa.reduce_aliasing(lf, 4.0, disparity=disparity),
+    "detect_aliasing": lambda lf, disparity: lfa.detect_aliasing(lf, 4.0, disparity=disparity),
+}
+
+
+@pytest.mark.parametrize("function", list(USES_A_DISPARITY))
+@pytest.mark.parametrize("bad", list(_bad_disparities(np.zeros((32, 32)))))
+def test_a_bad_disparity_is_a_named_error(room, function, bad):
+    lf, good = room
+    with pytest.raises(ParameterError, match="disparity"):
+        USES_A_DISPARITY[function](lf, _bad_disparities(good)[bad])
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "a complex disparity is cast to its real part (numpy's ComplexWarning) instead of being refused: "
+    "baselines._disparity_map accepts every np.number dtype"))
+@pytest.mark.parametrize("function", list(USES_A_DISPARITY))
+def test_a_complex_disparity_is_a_named_error(room, function):
+    lf, good = room
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ParameterError, match="disparity"):
+            USES_A_DISPARITY[function](lf, good + 1j)
+
+
+@pytest.mark.parametrize("kwargs, name", [({"slope": np.nan}, "slope"), ({"slope": "4"}, "slope"),
+                                          ({"nearer": "front"}, "nearer")])
+def test_bad_parameters_of_antialiased_refocus_are_named(room, kwargs, name):
+    lf, good = room
+    options = {"slope": 4.0, "disparity": good, **kwargs}
+    with pytest.raises(LightFieldError, match=name):
+        lfa.antialiased_refocus(lf, options.pop("slope"), **options)
+
+
+def test_antialiased_refocus_refuses_what_is_not_a_light_field(room):
+    lf, good = room
+    with pytest.raises(ParameterError, match="lf must be"):
+        lfa.antialiased_refocus(lf.data, 4.0, good)
+
+
+# -- inputs are left alone -----------------------------------------------------------------------------
+
+def test_the_light_field_and_the_disparity_given_are_not_modified():
+    scene = brick_room(n_views=4, size=48, seed=0)
+    lf = as_user_has_it(capture(scene.lightfield, vignetting=0.5, read_noise=0.005, calibrated=True, seed=2))
+    disparity = scene.disparity.astype(np.float32)
+    estimate = DisparityEstimate(disparity.copy(), np.full(disparity.shape, 0.7, np.float32), (-4.0, 4.0))
+    before = [lf.data.copy(), lf.weights.copy(), lf.positions.copy(), disparity.copy(),
+              estimate.disparity.copy(), estimate.confidence.copy()]
+    lfa.antialiased_refocus(lf, 4.0, disparity)
+    lfa.antialiased_refocus(lf, -4.0, estimate)
+    lfa.reduce_aliasing(lf, 4.0, disparity=disparity)
+    lfa.reduce_aliasing(lf, -4.0, disparity=estimate)
+    lfa.detect_aliasing(lf, 4.0, disparity=disparity)
+    after = [lf.data, lf.weights, lf.positions, disparity, estimate.disparity, estimate.confidence]
+    for old, new in zip(before, after):
+        np.testing.assert_array_equal(new, old)

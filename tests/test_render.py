@@ -140,9 +140,6 @@ def test_a_bad_disparity_is_a_named_error(room, function, bad):
         USES_A_DISPARITY[function](lf, _bad_disparities(good)[bad])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "a complex disparity is cast to its real part (numpy's ComplexWarning) instead of being refused: "
-    "baselines._disparity_map accepts every np.number dtype"))
 @pytest.mark.parametrize("function", list(USES_A_DISPARITY))
 def test_a_complex_disparity_is_a_named_error(room, function):
     lf, good = room

@@ -182,13 +182,19 @@ class DepthGuide:
         score[untrusted | agree] = 0.0
         return score
 
+    @staticmethod
+    def blend_weight(mask):
+        """The share ``(Y, X)`` of the rendering each pixel takes: at least a half on the ``mask``, the
+        edge softened over about a pixel on either side (0 elsewhere: those pixels stay the naive
+        refocus exactly)."""
+        weight = ndimage.gaussian_filter(mask.astype(np.float32), 0.7)
+        weight = np.where(mask, np.maximum(weight, 0.5), weight).astype(np.float32)
+        weight[weight < 0.02] = 0.0
+        return weight
+
     def blend(self, naive, rendered, mask):
-        """``naive`` with ``rendered`` in the ``mask`` pixels, the edge softened over about a pixel
-        inside the mask (every pixel outside it stays the naive refocus exactly)."""
+        """``naive`` with ``rendered`` in the ``mask`` pixels, by :meth:`blend_weight`."""
         if not mask.any():
             return naive.copy()
-        weight = ndimage.gaussian_filter(mask.astype(np.float32), 0.7)
-        weight = np.where(mask, np.maximum(weight, 0.5), 0.0).astype(np.float32)
-        out = naive.copy()
-        out[mask] += weight[mask][:, None] * (rendered[mask] - naive[mask])
-        return out
+        weight = self.blend_weight(mask)
+        return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)

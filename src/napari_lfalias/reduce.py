@@ -340,7 +340,9 @@ def _reduce_depth_guided(detector, slope, threshold):
 
     Yields ``(done, 4)`` after the disparity, the rendering, the detection
     and the blend; returns the :class:`Reduction` (``level`` holds the
-    pyramid level equivalent to each replaced pixel's blur).
+    pyramid level equivalent to the blur of each pixel the rendering
+    changed, the soft edge around the flagged pixels included; 0: the
+    naive refocus exactly).
     """
     from .baselines import view_spacing
     from .refocus import refocus
@@ -355,9 +357,10 @@ def _reduce_depth_guided(detector, slope, threshold):
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
     image = guide.blend(refocused, rendering.image, detection.mask)
-    level = np.where(detection.mask, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
-                                                           MAX_LEVEL), 0).astype(np.uint8)
-    level[detection.mask & (level == 0)] = 1
+    changed = guide.blend_weight(detection.mask) > 0 if detection.mask.any() else detection.mask
+    level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
+                                                    MAX_LEVEL), 0).astype(np.uint8)
+    level[changed & (level == 0)] = 1
     yield (4, 4)
     return Reduction(image, level, detection.cv, refocused, [detection])
 

@@ -172,6 +172,12 @@ def test_not_live_the_disparity_waits_for_reduce(make_napari_viewer, qtbot):
     _idle(qtbot, widget)
     estimate = lfa.estimate_disparity(lf)
     np.testing.assert_array_equal(fused.data, lfa.reduce_aliasing(lf, widget.slope, disparity=estimate).image)
+    # a refocus made after the disparity layer goes under it (the disparity, shown, lies over it)
+    widget.update_button.click()
+    refocused = _wait_for(qtbot, viewer, "refocus", slope=widget.slope)
+    _idle(qtbot, widget)
+    assert viewer.layers.index(refocused) < viewer.layers.index(find_output_layer(viewer, "disparity"))
+    assert find_output_layer(viewer, "fused") is fused  # made at this focus: kept
     assert widget.shutdown()
 
 

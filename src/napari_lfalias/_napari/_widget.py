@@ -624,10 +624,10 @@ class AliasingWidget(QWidget):
         """A new output layer: stop drawing what it covers, and frame what is to be seen."""
         if role == "refocus":
             self._source_layer.visible = False  # the opaque refocused image covers the views
-            below = [i for i, other in enumerate(self.viewer.layers)
-                     if other is not layer and other in output_layers(self.viewer, self.source)]
-            if below:  # made after an output that lies over it (a quick disparity): go under it
-                self.viewer.layers.move(self.viewer.layers.index(layer), below[0])
+            earlier = [self.viewer.layers.index(other) for other in output_layers(self.viewer, self.source)
+                       if other is not layer]
+            if earlier:  # made after an output that lies over it (a quick disparity): go under it
+                self.viewer.layers.move(self.viewer.layers.index(layer), min(earlier))
         if role in ("refocus", "fused"):
             if placement(self._source_layer, role)["units"][0] != "pixel":
                 scale_bar(self.viewer).visible = True

@@ -254,8 +254,14 @@ def test_a_depth_reduction_is_the_apis_with_the_sessions_disparity(room):
     session = AliasingSession(room)
     params = DetectionParams(method="depth", threshold=0.02)
     reduced, steps = _run(session.reduce(4.0, params))  # no disparity yet: estimated first, with stages
-    assert [step[2] for step in steps if len(step) == 3] == ["inputs", "coarse sweep", "sweep", "aggregation",
-                                                             "fill"]
+    progress = [step for step in steps if isinstance(step, tuple)]
+    assert [step[2] for step in progress if len(step) == 3] == ["inputs", "coarse sweep", "sweep", "aggregation",
+                                                                "fill"]
+    # the reduction's stages count one more, the anti-aliased rendering, which comes after the reduction
+    assert [step for step in progress if len(step) == 2][-1] == (4, 5)
+    (first,) = _partials(steps)
+    assert first.reduction is reduced.reduction and first.antialiased is None
+    assert isinstance(steps[-1], Partial)
     estimate = lfa.estimate_disparity(room)
     np.testing.assert_array_equal(session.estimate.disparity, estimate.disparity)
     expected = lfa.reduce_aliasing(room, 4.0, disparity=estimate)

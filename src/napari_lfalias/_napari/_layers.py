@@ -107,8 +107,8 @@ class Role:
 #: the same rules: a disparity map is a quantity (colormap, colorbar,
 #: contrast from its own range) over the refocus, hidden like the Cv until
 #: asked for; an anti-aliased rendering is an image beside the refocus, in
-#: the reduced image's place and hidden under it (the two differ only where
-#: the reduction kept the refocus: toggle it to compare).
+#: the reduced image's place and hidden under it (toggle it to compare: the
+#: reduced image keeps the naive refocus wherever nothing is predicted to alias).
 ROLES = {
     "refocus": Role("image", "over", True, "source", False, "refocused"),
     "cv": Role("image", "over", False, "adaptive", True, "Cv",

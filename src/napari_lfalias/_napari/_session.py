@@ -108,6 +108,20 @@ def _enlarge(image, shape, level):
     return np.ascontiguousarray(big[: shape[0], : shape[1]])
 
 
+def _one_more_stage(stages):
+    """``stages`` (yielding ``(done, total)``) with one more stage counted in each total; closing it
+    closes ``stages``."""
+    try:
+        while True:
+            try:
+                done, total = next(stages)
+            except StopIteration as end:
+                return end.value
+            yield done, total + 1
+    finally:
+        stages.close()
+
+
 def _pause(seconds, step, until=None, longest_s=1.0):
     """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile.
 
@@ -533,25 +547,28 @@ class AliasingSession:
         returns a :class:`Reduced`; stopping the job stops the reduction at
         the next stage. With the disparity-guided method the session's
         disparity is used (estimated first, with its stages, if
-        :meth:`disparity` has not made it yet), so the result is
-        ``reduce_aliasing(lf, slope, disparity=estimate_disparity(lf))``, and
-        the dense-aperture rendering comes with it.
+        :meth:`disparity` has not made it yet), so the reduction is
+        ``reduce_aliasing(lf, slope, disparity=estimate_disparity(lf))``; it
+        comes first as a :class:`~._jobs.Partial` ``Reduced``, then one
+        more stage renders ``antialiased_refocus(lf, slope, estimate)`` (the
+        public function, whatever the reduction's own rendering does).
         """
         from ..reduce import iter_reduce_aliasing
+        from ..render import antialiased_refocus
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
         guided = params.method not in CV_METHODS
         if guided:
-            yield from self._disparity_of(detector)
+            estimate = yield from self._disparity_of(detector)
         # the core's own steps: progress per stage, and a quit() takes effect between two of them
         stages = iter_reduce_aliasing(detector.source, slope, detector=detector, **params.reduce_kwargs())
-        reduction = yield from self._stepwise(stages, (0, 2))
         if not guided:
-            return Reduced(reduction)
-        # kept by the detector's guide for this slope: nothing is rendered again
-        rendering = yield from self._locked((4, 4), lambda: detector.guide.rendering(slope))
-        return Reduced(reduction, rendering.image)
+            return Reduced((yield from self._stepwise(stages, (0, 2))))
+        reduction = yield from self._stepwise(_one_more_stage(stages), (0, 2))
+        yield Partial(Reduced(reduction))
+        # needs only the views: the detector stays free for focus changes
+        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate))
 
     def _stepwise(self, stages, waiting):
         """Run the generator ``stages`` one step at a time under the lock, free between steps.

@@ -575,15 +575,24 @@ class AliasingWidget(QWidget):
             return None
         slope, params = self.slope, self.params()
         job = self.session.reduce(slope, params)
+        shown = []
+
+        def reduced_first(reduced):  # the dense-aperture method: the reduction before the anti-aliased image
+            self._show_reduction(reduced, slope, params)
+            shown.append(True)
 
         def done(reduced):
             if params != self.params() or slope != self.slope:
                 self._set_status("reduction dropped: the settings changed while it ran; press Reduce "
                                  "aliasing again")
                 return
-            self._show_reduction(reduced, slope, params)
+            if not shown:
+                self._show_reduction(reduced, slope, params)
+            if reduced.antialiased is not None:
+                self._show("antialiased", self._image(reduced.antialiased), self._meta(slope, params),
+                           contrast_limits=self._source_contrast())
 
-        return job, done
+        return job, done, reduced_first
 
     def _disparity_job(self):
         session = self.session
@@ -693,8 +702,8 @@ class AliasingWidget(QWidget):
                          f"{params.threshold:.4g}; the Cv layer is hidden until you show it)")
 
     def _show_reduction(self, reduced, slope, params):
-        """The reduced image and its level map; with the dense-aperture method also the anti-aliased
-        rendering, and the reduction's own detection as the mask."""
+        """The reduced image and its level map; with the dense-aperture method also the reduction's own
+        detection as the mask."""
         reduction = reduced.reduction
         meta = self._meta(slope, params)
         self._show("fused", self._image(reduction.image), meta, contrast_limits=self._source_contrast())
@@ -704,15 +713,14 @@ class AliasingWidget(QWidget):
         self.legend.setVisible(True)
         side = "right" if self.beside_check.isChecked() else "over the refocused image"
         share = float(np.mean(reduction.level > 0))
-        if reduced.antialiased is None:
+        if params.method in CV_METHODS:
             self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels from levels up "
                              f"to {highest}")
             return
-        self._show("antialiased", self._image(reduced.antialiased), meta, contrast_limits=self._source_contrast())
         self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
         self._show_mask_source(params.method, slope)
         self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels (magenta) take what a "
-                         "dense aperture records; the whole anti-aliased rendering is in a hidden layer")
+                         "dense aperture records; the whole anti-aliased rendering goes to a hidden layer")
 
     def _show_disparity(self, estimate):
         params = {"disparity_range": [float(v) for v in estimate.disparity_range],

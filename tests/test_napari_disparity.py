@@ -31,6 +31,17 @@ from test_napari_widget import (  # noqa: E402,F401  (_forget_widgets: autouse)
 )
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _kernels_ready():
+    """Every kernel the widget runs, compiled before the first wait (a cold numba cache on a loaded
+    machine takes longer than a test waits for a result); a second or so when cached."""
+    from napari_lfalias._napari import _warmup
+
+    lf = _warmup._tiny_lightfield()
+    for _, step in _warmup.STEPS:
+        step(lf)
+
+
 def _disparity_layer(qtbot, viewer):
     qtbot.waitUntil(lambda: find_output_layer(viewer, "disparity") is not None, timeout=TIMEOUT_MS)
     return find_output_layer(viewer, "disparity")

@@ -19,6 +19,7 @@ from napari_lfalias._napari._layers import adaptive_limits, find_output_layer  #
 pytestmark = pytest.mark.napari
 
 from test_napari_jobs import no_leaked_worker_threads  # noqa: E402,F401  (autouse: no thread outlives a test)
+from test_napari_session import _never_estimated_again  # noqa: E402
 from test_napari_widget import (  # noqa: E402,F401  (_forget_widgets: autouse)
     TIMEOUT_MS,
     _add,
@@ -86,7 +87,7 @@ def _open_while_estimating(make_napari_viewer, qtbot, entered, size):
     return viewer, widget, lf
 
 
-def test_the_disparity_worker_gives_the_apis_estimate_with_progress(make_napari_viewer, qtbot):
+def test_the_disparity_worker_gives_the_apis_estimate_with_progress(make_napari_viewer, qtbot, monkeypatch):
     viewer = make_napari_viewer()
     lf = _scene(n_views=5, size=96)
     _add(viewer, lf, name="room")
@@ -101,8 +102,9 @@ def test_the_disparity_worker_gives_the_apis_estimate_with_progress(make_napari_
     expected = lfa.estimate_disparity(lf)
     np.testing.assert_array_equal(layer.data, expected.disparity)
     np.testing.assert_array_equal(widget.session.estimate.confidence, expected.confidence)
-    # handed to the session's detector (for Reduce aliasing), estimated once
-    assert widget.session.detector.guide.estimate[0] is widget.session.estimate.disparity
+    # handed to the session's detector (for Reduce aliasing), never estimated again
+    _never_estimated_again(monkeypatch)
+    np.testing.assert_array_equal(widget.session.detector.guide.estimate[0], expected.disparity)
     # honest progress: each stage named as it ends, the bar moving from 0 to the end
     assert "estimating: 2/5 stages done (coarse sweep)" in seen
     assert "estimating: 4/5 stages done (aggregation)" in seen

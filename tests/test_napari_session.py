@@ -212,7 +212,17 @@ def test_previews_go_one_level_coarser_while_they_are_slow(monkeypatch):
 # -- the disparity-guided method ---------------------------------------------------------------
 
 
-def test_the_disparity_job_reports_stages_and_gives_the_apis_estimate(room):
+def _never_estimated_again(monkeypatch):
+    """Make any further ``estimate_disparity`` call fail: what was handed over must be used."""
+    from napari_lfalias import disparity as disparity_module
+
+    def estimate_again(*args, **kwargs):
+        raise AssertionError("the disparity was estimated again instead of the one handed over")
+
+    monkeypatch.setattr(disparity_module, "estimate_disparity", estimate_again)
+
+
+def test_the_disparity_job_reports_stages_and_gives_the_apis_estimate(room, monkeypatch):
     session = AliasingSession(room)
     estimate, steps = _run(session.disparity())
     stages = [step[2] for step in steps if len(step) == 3 and step[0] > 0]
@@ -223,7 +233,8 @@ def test_the_disparity_job_reports_stages_and_gives_the_apis_estimate(room):
     np.testing.assert_array_equal(estimate.confidence, expected.confidence)
     # handed to the detector: its guide renders with this estimate, none of its own
     assert session.estimate is estimate
-    assert session.detector.guide.estimate[0] is estimate.disparity
+    _never_estimated_again(monkeypatch)
+    np.testing.assert_array_equal(session.detector.guide.estimate[0], estimate.disparity)
     again, steps = _run(session.disparity())  # kept: no stage runs again
     assert again is estimate and not [step for step in steps if len(step) == 3 and step[0] > 0]
 

@@ -103,12 +103,13 @@ def test_new_gamma_and_seed_reuse_the_shifted_views(room):
 
 def test_reduce_is_the_api_reduction_with_the_sessions_detector(room):
     session = AliasingSession(room)
-    params = DetectionParams(threshold=0.01, max_level=2)
-    reduction, _ = _run(session.reduce(4.0, params))
+    params = DetectionParams(threshold=0.01, max_level=2, method="analytic")
+    reduced, _ = _run(session.reduce(4.0, params))
     expected = lfa.reduce_aliasing(room, 4.0, threshold=0.01, max_level=2, seed=0, method="analytic")
-    np.testing.assert_array_equal(reduction.level, expected.level)
-    np.testing.assert_array_equal(reduction.image, expected.image)
-    assert reduction.level.max() > 0
+    np.testing.assert_array_equal(reduced.reduction.level, expected.level)
+    np.testing.assert_array_equal(reduced.reduction.image, expected.image)
+    assert reduced.reduction.level.max() > 0
+    assert reduced.antialiased is None and session.estimate is None  # a Cv method needs no disparity
 
 
 def test_a_stopped_reduction_stops_between_stages_and_frees_the_detector(room, monkeypatch):
@@ -117,7 +118,7 @@ def test_a_stopped_reduction_stops_between_stages_and_frees_the_detector(room, m
     fused = []
     monkeypatch.setattr(reduce_module, "fuse_gradients", lambda *a, **k: fused.append(1))
     session = AliasingSession(room)
-    job = session.reduce(4.0, DetectionParams(threshold=0.01, max_level=3))
+    job = session.reduce(4.0, DetectionParams(threshold=0.01, max_level=3, method="analytic"))
     steps = []
     while len([s for s in steps if isinstance(s, tuple) and s[1] == 6]) < 2:
         steps.append(next(job))  # the core's stages: (done, 6) for max_level 3
@@ -156,7 +157,8 @@ def test_jobs_in_two_threads_share_the_detector_safely(room):
         results[name] = _run(job)[0]
 
     threads = [
-        threading.Thread(target=work, args=("reduce", session.reduce(4.0, DetectionParams(threshold=0.01)))),
+        threading.Thread(target=work, args=("reduce", session.reduce(4.0, DetectionParams(threshold=0.01,
+                                                                                         method="analytic")))),
         threading.Thread(target=work, args=("detect", session.detect(-1.5, DetectionParams()))),
     ]
     for thread in threads:
@@ -164,7 +166,7 @@ def test_jobs_in_two_threads_share_the_detector_safely(room):
     for thread in threads:
         thread.join(60)
     np.testing.assert_array_equal(results["detect"].cv, lfa.detect_aliasing(room, -1.5, skip_flat=False, method="analytic").cv)
-    np.testing.assert_array_equal(results["reduce"].image,
+    np.testing.assert_array_equal(results["reduce"].reduction.image,
                                   lfa.reduce_aliasing(room, 4.0, threshold=0.01, seed=0, method="analytic").image)
 
 
@@ -205,3 +207,80 @@ def test_previews_go_one_level_coarser_while_they_are_slow(monkeypatch):
     for slope in (1.0, 1.25):
         _run(session.focus(slope, params))
     assert session.preview_level() == 2
+
+
+# -- the disparity-guided method ---------------------------------------------------------------
+
+
+def _never_estimated_again(monkeypatch):
+    """Make any further ``estimate_disparity`` call fail: what was handed over must be used."""
+    from napari_lfalias import disparity as disparity_module
+
+    def estimate_again(*args, **kwargs):
+        raise AssertionError("the disparity was estimated again instead of the one handed over")
+
+    monkeypatch.setattr(disparity_module, "estimate_disparity", estimate_again)
+
+
+def test_the_disparity_job_reports_stages_and_gives_the_apis_estimate(room, monkeypatch):
+    session = AliasingSession(room)
+    estimate, steps = _run(session.disparity())
+    stages = [step[2] for step in steps if len(step) == 3 and step[0] > 0]
+    assert stages[:5] == ["inputs", "coarse sweep", "sweep", "aggregation", "fill"]
+    assert all(done <= total == 5 for done, total, _ in steps)
+    expected = lfa.estimate_disparity(room)
+    np.testing.assert_array_equal(estimate.disparity, expected.disparity)
+    np.testing.assert_array_equal(estimate.confidence, expected.confidence)
+    # handed to the detector: its guide renders with this estimate, none of its own
+    assert session.estimate is estimate
+    _never_estimated_again(monkeypatch)
+    np.testing.assert_array_equal(session.detector.guide.estimate[0], estimate.disparity)
+    again, steps = _run(session.disparity())  # kept: no stage runs again
+    assert again is estimate and not [step for step in steps if len(step) == 3 and step[0] > 0]
+
+
+def test_a_stopped_disparity_job_stops_between_stages(room, monkeypatch):
+    from napari_lfalias import disparity as disparity_module
+
+    ran = []
+    real = disparity_module._aggregate
+
+    def counted(*args, **kwargs):
+        ran.append("aggregation")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(disparity_module, "_aggregate", counted)
+    session = AliasingSession(room)
+    job = session.disparity()
+    step = next(job)
+    while not (len(step) == 3 and step[2] == "coarse sweep"):
+        step = next(job)
+    job.close()  # what a worker's quit() does at a yield
+    assert ran == [] and session.estimate is None and not session._lock.locked()
+    estimate, _ = _run(session.disparity())  # a new job estimates it from the start
+    assert ran == ["aggregation"] and session.estimate is estimate
+
+
+def test_a_depth_reduction_is_the_apis_with_the_sessions_disparity(room):
+    session = AliasingSession(room)
+    params = DetectionParams(method="depth", threshold=0.02)
+    reduced, steps = _run(session.reduce(4.0, params))  # no disparity yet: estimated first, with stages
+    progress = [step for step in steps if isinstance(step, tuple)]
+    assert [step[2] for step in progress if len(step) == 3] == ["inputs", "coarse sweep", "sweep", "aggregation",
+                                                                "fill"]
+    # the reduction's stages count one more, the anti-aliased rendering, which comes after the reduction
+    assert [step for step in progress if len(step) == 2][-1] == (4, 5)
+    (first,) = _partials(steps)
+    assert first.reduction is reduced.reduction and first.antialiased is None
+    assert isinstance(steps[-1], Partial)
+    estimate = lfa.estimate_disparity(room)
+    np.testing.assert_array_equal(session.estimate.disparity, estimate.disparity)
+    expected = lfa.reduce_aliasing(room, 4.0, disparity=estimate)
+    np.testing.assert_array_equal(reduced.reduction.image, expected.image)
+    np.testing.assert_array_equal(reduced.reduction.level, expected.level)
+    np.testing.assert_array_equal(reduced.antialiased, lfa.antialiased_refocus(room, 4.0, estimate))
+    assert 0 < expected.level.astype(bool).mean() < 1
+    # the live Cv is unchanged by the method: the exact one
+    detection, _ = _run(session.detect(4.0, params))
+    np.testing.assert_array_equal(detection.cv, lfa.detect_aliasing(room, 4.0, skip_flat=False,
+                                                                    method="analytic").cv)

@@ -115,15 +115,16 @@ def test_focus_change_gives_the_api_refocus_and_exact_cv(scene_viewer, qtbot):
     assert mask._type_string == "labels"
     np.testing.assert_array_equal(mask.data.astype(bool), detection.mask)
     assert 0 < detection.mask.mean() < 1  # the mask is not trivially empty or full
-    # outputs are updated in place: one layer per role
-    roles = [layer.metadata.get("lfalias") for layer in viewer.layers]
-    assert sorted(r for r in roles if r) == ["cv", "mask", "refocus"]
+    # outputs are updated in place: one layer per role (and the disparity, once it is estimated)
+    _idle(qtbot, widget)
+    roles = [layer.metadata.get("lfalias") for layer in viewer.layers if layer.metadata.get("lfalias")]
+    assert sorted(roles) == ["cv", "disparity", "mask", "refocus"]
 
 
 def test_a_drag_of_the_focus_ends_on_its_last_slope(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
     shown = []
-    widget.outputs_updated.connect(lambda role, params: shown.append((role, params["slope"])))
+    widget.outputs_updated.connect(lambda role, params: shown.append((role, params.get("slope"))))
     for value in np.linspace(-0.9, 1.3, 12):  # faster than the worker can follow
         widget.focus_slider.setValue(float(value))
     slope = widget.slope
@@ -133,7 +134,7 @@ def test_a_drag_of_the_focus_ends_on_its_last_slope(scene_viewer, qtbot):
     np.testing.assert_array_equal(refocused.data, lfa.refocus(lf, slope))
     # superseded slopes were dropped, not all queued up and shown in turn
     assert len({s for role, s in shown if role == "refocus"}) < 12
-    assert shown[-1][1] == slope
+    assert [s for role, s in shown if role != "disparity"][-1] == slope
 
 
 def test_threshold_rethresholds_without_recomputing(scene_viewer, qtbot):
@@ -220,6 +221,7 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     lf = _scene(n_views=5, size=128)
     _add(viewer, lf)
     widget = _open_widget(viewer, qtbot)
+    widget.set_method("analytic")  # Algorithm 2, whose fusion is gated
     _wait_for(qtbot, viewer, "cv", slope=widget.slope)
     _idle(qtbot, widget)
 
@@ -240,8 +242,7 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     timer.stop()
     assert gate.is_set() and sum(ticks_while_busy) >= 3  # the GUI thread ticked while the worker reduced
 
-    params = widget.params()
-    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())
+    expected = lfa.reduce_aliasing(lf, widget.slope, **widget.params().reduce_kwargs())
     np.testing.assert_array_equal(fused.data, expected.image)
     level = find_output_layer(viewer, "level")
     np.testing.assert_array_equal(level.data, expected.level)
@@ -251,6 +252,7 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
 
 def test_keep_in_focus_box_gives_the_api_reduction(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
+    widget.set_method("analytic")  # the box belongs to Algorithm 2
     widget.focus_slider.setValue(-4.0)  # on the wall, behind the defocused cube
     widget.threshold_slider.setValue(0.005)
     widget.keep_check.setChecked(True)
@@ -259,8 +261,8 @@ def test_keep_in_focus_box_gives_the_api_reduction(scene_viewer, qtbot):
     fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
     params = widget.params()
     assert params.keep_in_focus and params.threshold == pytest.approx(0.005, rel=0.02)
-    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, keep_in_focus=True,
-                                   **params.detect_kwargs())
+    expected = lfa.reduce_aliasing(lf, widget.slope, **params.reduce_kwargs())
+    assert params.reduce_kwargs()["keep_in_focus"] is True
     np.testing.assert_array_equal(fused.data, expected.image)
     paper = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())
     assert not np.allclose(fused.data, paper.image, atol=1e-3)
@@ -504,6 +506,7 @@ def gated_levels(monkeypatch):
 
 
 def _start_gated_reduction(qtbot, widget, entered):
+    widget.set_method("analytic")  # Algorithm 2: its second stage detects on level 1
     _idle(qtbot, widget)
     entered.clear()
     widget.reduce()
@@ -544,8 +547,7 @@ def test_a_second_reduce_click_stops_the_first_and_finishes(scene_viewer, qtbot,
     gate.set()
     fused = _wait_for(qtbot, viewer, "fused", slope=widget.slope)
     _idle(qtbot, widget)
-    params = widget.params()
-    expected = lfa.reduce_aliasing(lf, widget.slope, max_level=params.max_level, **params.detect_kwargs())
+    expected = lfa.reduce_aliasing(lf, widget.slope, **widget.params().reduce_kwargs())
     np.testing.assert_array_equal(fused.data, expected.image)
     assert not widget.session._lock.locked() and not widget.cancel_button.isEnabled()
     assert [layer.metadata.get("lfalias") for layer in viewer.layers].count("fused") == 1
@@ -667,7 +669,7 @@ def test_n_and_seed_only_for_monte_carlo_and_they_never_recompute_the_exact_cv(s
     viewer, widget, lf = scene_viewer
     _wait_for(qtbot, viewer, "cv", slope=widget.slope)
     _idle(qtbot, widget)
-    assert widget.method == "analytic"
+    assert widget.method == "depth" and widget.params().live_method == "analytic"
     assert not widget.n_spin.isEnabled() and not widget.seed_spin.isEnabled()
     updates = []
     widget.outputs_updated.connect(lambda role, params: updates.append(role))
@@ -714,9 +716,9 @@ def test_the_controls_show_the_librarys_defaults(make_napari_viewer, qtbot, monk
     library = {**resolved, "max_level": max_level}
     for name in defaults:
         expected = signature[name].default if signature[name].default is not None else library[name]
-        if name == "method" and expected == "depth":
-            expected = INTERACTIVE_METHOD  # the live Cv layer's method
         assert defaults[name] == expected, name
+    assert defaults["method"] == "depth"  # the library's default, offered as "dense aperture (disparity)"
+    assert DetectionParams().live_method == INTERACTIVE_METHOD  # the live Cv layer's method
     viewer = make_napari_viewer()
     widget = _open_widget(viewer, qtbot)
     shown = widget.params()
@@ -755,7 +757,8 @@ def test_renaming_the_light_field_layer_is_followed(scene_viewer, qtbot):
     _wait_for(qtbot, viewer, "cv", slope=0.5)
     _idle(qtbot, widget)
     roles = [layer.metadata.get("lfalias") for layer in viewer.layers if layer.metadata.get("lfalias")]
-    assert sorted(roles) == ["cv", "mask", "refocus"]
+    assert sorted(roles) == ["cv", "disparity", "mask", "refocus"]
+    assert find_output_layer(viewer, "disparity").name == "disparity [scene A]"
 
 
 def test_a_large_light_field_shows_a_preview_then_the_full_result(make_napari_viewer, qtbot):
@@ -835,6 +838,19 @@ def test_the_plugin_starts_the_warm_up_when_napari_activates_it(make_napari_view
     PluginManager.instance().activate("napari-lfalias")
     assert _warmup.state() in ("loading", "compiling", "ready")
     assert _warmup.wait(120)
+    assert _warmup._failed == []  # a failed step would leave its kernels to the first use
+
+
+def test_every_warm_up_step_runs_what_the_widget_runs():
+    """Each step calls the core as the widget does (a step that raised would warm nothing)."""
+    from napari_lfalias._napari import _warmup
+
+    lf = _warmup._tiny_lightfield()
+    names = []
+    for name, step in _warmup.STEPS:
+        step(lf)  # raises if the core refuses the call
+        names.append(name)
+    assert "disparity estimate and dense-aperture rendering" in names and "aliasing detection" in names
 
 
 # -- physical scale -----------------------------------------------------------------------------

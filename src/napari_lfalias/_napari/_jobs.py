@@ -12,8 +12,12 @@ not as they were when it was made. The job runs in a napari
 new request for a busy slot asks the running job to stop (``quit()``: it
 stops at its next yield) and starts once the slot is free, so requests
 never pile up. Each request is stamped with a generation number; a result
-whose generation is no longer current is dropped. Errors are always
-reported, stale or not.
+whose generation is no longer current is dropped, unless the job was
+submitted as ``lasting`` (its result depends on none of the parameters,
+e.g. a light field's disparity): then only :meth:`JobRunner.cancel`, a
+newer request for its slot or the owner's deletion stop it. Errors are
+always reported, stale or not. A job may yield ``(done, total, stage)``:
+the stage's name goes to ``on_progress`` too.
 
 A stopped job is closed in its own worker thread as soon as it stops
 (:class:`_ClosingWorker`): its ``finally`` blocks run then (a lock it
@@ -116,7 +120,8 @@ class JobRunner:
     Parameters
     ----------
     on_progress : callable, optional
-        ``on_progress(slot, done, total)`` on each yield of a job.
+        ``on_progress(slot, done, total)`` (or ``(slot, done, total, stage)``
+        for a job that names its stages) on each yield of a job.
     on_error : callable, optional
         ``on_error(slot, exception)`` when a job raises (stale or not);
         default: a napari error notification.
@@ -129,6 +134,7 @@ class JobRunner:
 
     def __init__(self, on_progress=None, on_error=None, on_idle=None, owner=None):
         self.generation = 0
+        self._cancels = 0  # what makes lasting jobs stale: cancel()
         self._workers = {}
         self._pending = {}
         self._on_progress = on_progress
@@ -161,7 +167,7 @@ class JobRunner:
         return list(self._workers.values())
 
     # -- requests ---------------------------------------------------------------
-    def submit(self, slot, make_job):
+    def submit(self, slot, make_job, lasting=False):
         """Run a job in ``slot``.
 
         Parameters
@@ -176,14 +182,18 @@ class JobRunner:
             yields) is called only if no parameter changed and no newer
             request came for the slot since the job started.
 
+        lasting : bool
+            The result holds whatever the parameters: :meth:`bump` does not
+            make it stale (a newer request for the slot and :meth:`cancel` do).
+
         If ``slot`` is busy, the running job is asked to stop and this
         request replaces any earlier one waiting for the slot.
         """
         if slot in self._workers:
-            self._pending[slot] = make_job
+            self._pending[slot] = (make_job, lasting)
             self._workers[slot].quit()
             return
-        self._start(slot, make_job)
+        self._start(slot, make_job, lasting)
 
     def stop(self, slot):
         """Stop the job of ``slot`` (if any) and drop a request waiting for it.
@@ -203,6 +213,7 @@ class JobRunner:
         """Stop every job, drop waiting requests, and make results in flight stale."""
         self._pending.clear()
         self.bump()
+        self._cancels += 1
         for worker in list(self._workers.values()):
             worker.quit()
 
@@ -224,19 +235,20 @@ class JobRunner:
         return not self._workers
 
     # -- internals --------------------------------------------------------------
-    def _start(self, slot, make_job):
+    def _start(self, slot, make_job, lasting=False):
         made = make_job()
         if made is None:
             self._finish(slot, None)
             return None
         generator, on_result = made[:2]
         on_partial = made[2] if len(made) > 2 else None
-        generation = self.generation
+        generation, cancels = self.generation, self._cancels
         worker = _closing_worker(generator)
         self._workers[slot] = worker
 
         def current():
-            return generation == self.generation and slot not in self._pending and _alive(self._owner)
+            fresh = cancels == self._cancels if lasting else generation == self.generation
+            return fresh and slot not in self._pending and _alive(self._owner)
 
         def returned(result):
             if result is not _FAILED and current():
@@ -279,7 +291,7 @@ class JobRunner:
             return
         waiting = self._pending.pop(slot, None)
         if waiting is not None:
-            self._start(slot, waiting)
+            self._start(slot, *waiting)
         elif not self._workers and self._on_idle is not None:
             self._on_idle()
 

@@ -105,8 +105,10 @@ class Role:
 #: Output roles and how each is displayed. Depth and anti-aliased layers
 #: (DESIGN section 3: ``estimate_disparity``, ``antialiased_refocus``) follow
 #: the same rules: a disparity map is a quantity (colormap, colorbar,
-#: adaptive contrast) over the refocus, an anti-aliased rendering an image
-#: beside it.
+#: contrast from its own range) over the refocus, hidden like the Cv until
+#: asked for; an anti-aliased rendering is an image beside the refocus, in
+#: the reduced image's place and hidden under it (toggle it to compare: the
+#: reduced image keeps the naive refocus wherever nothing is predicted to alias).
 ROLES = {
     "refocus": Role("image", "over", True, "source", False, "refocused"),
     "cv": Role("image", "over", False, "adaptive", True, "Cv",
@@ -118,7 +120,7 @@ ROLES = {
                   {"opacity": 0.6, "colormap": LEVEL_COLOURS}),
     "disparity": Role("image", "over", False, "adaptive", True, "disparity",
                       {"colormap": "turbo", "blending": "translucent_no_depth", "opacity": 1.0}),
-    "antialiased": Role("image", "beside", True, "source", False, "anti-aliased"),
+    "antialiased": Role("image", "beside", False, "source", False, "anti-aliased"),
 }
 
 

@@ -27,6 +27,14 @@ reduction can still be stopped. Nothing is yielded while the lock is
 held: a reduction takes it for each of its stages and gives it back
 between them, so a job stopped (or never resumed) at a yield holds no
 lock, and a focus change detects between two stages of a reduction.
+
+The disparity-guided method (the library's default, ``"depth"``) needs the
+light field's disparity: :meth:`AliasingSession.disparity` estimates it
+once, stage by stage (:func:`~napari_lfalias.disparity.iter_estimate_disparity`),
+without the lock (it reads only the views), and hands it to the detector
+(:meth:`~napari_lfalias.detect.AliasingDetector.use_disparity`). The live
+Cv stays on :attr:`DetectionParams.live_method`, the exact Cv, whatever the
+method: one pass per focus change.
 """
 
 from __future__ import annotations
@@ -41,7 +49,13 @@ import numpy as np
 
 from ._jobs import Partial
 
-__all__ = ["DetectionParams", "AliasingSession", "Preview", "focus_range", "library_defaults"]
+__all__ = ["DetectionParams", "AliasingSession", "Preview", "Reduced", "focus_range", "library_defaults",
+           "CV_METHODS"]
+
+#: The methods whose Cv the live mask can show; any other method (the default, ``"depth"``) keeps
+#: the live mask on :data:`~napari_lfalias.presets.INTERACTIVE_METHOD` and uses the disparity only
+#: when reducing.
+CV_METHODS = ("analytic", "monte_carlo")
 
 #: Largest focus slope, in pixels per view step, when the data carry no disparities.
 DEFAULT_MAX_SLOPE = 2.0
@@ -94,6 +108,20 @@ def _enlarge(image, shape, level):
     return np.ascontiguousarray(big[: shape[0], : shape[1]])
 
 
+def _one_more_stage(stages):
+    """``stages`` (yielding ``(done, total)``) with one more stage counted in each total; closing it
+    closes ``stages``."""
+    try:
+        while True:
+            try:
+                done, total = next(stages)
+            except StopIteration as end:
+                return end.value
+            yield done, total + 1
+    finally:
+        stages.close()
+
+
 def _pause(seconds, step, until=None, longest_s=1.0):
     """Yield ``step`` for ``seconds`` (in 5 ms sleeps), so that a stop request takes effect meanwhile.
 
@@ -128,18 +156,13 @@ def library_defaults():
     """
     import inspect
 
-    from ..presets import INTERACTIVE_METHOD
     from ..reduce import reduce_aliasing, reduction_options
 
     signature = inspect.signature(reduce_aliasing).parameters
     defaults = {name: signature[name].default for name in LIBRARY_PARAMETERS}
     detection, max_level, _ = reduction_options()  # what the library puts for the parameters left at None
     resolved = {**detection, "max_level": max_level}
-    defaults = {name: resolved[name] if value is None else value for name, value in defaults.items()}
-    if defaults["method"] not in ("analytic", "monte_carlo"):
-        # the widget's live Cv layer: one pass per focus change (presets.INTERACTIVE_METHOD)
-        defaults["method"] = INTERACTIVE_METHOD
-    return defaults
+    return {name: resolved[name] if value is None else value for name, value in defaults.items()}
 
 
 def _library_default(name):
@@ -148,10 +171,17 @@ def _library_default(name):
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Parameters of Algorithm 1 (and 2), as the widget's controls hold them.
+    """Parameters of the detection and reduction, as the widget's controls hold them.
 
     Defaults are the library's (:func:`library_defaults`); the seed is
-    :data:`WIDGET_SEED`.
+    :data:`WIDGET_SEED`. ``method`` is the one "Reduce aliasing" uses; the
+    live Cv and mask use :attr:`live_method`.
+
+    Examples
+    --------
+    >>> params = DetectionParams(method="depth", threshold=0.02)
+    >>> params.live_method, params.reduce_kwargs()
+    ('analytic', {'threshold': 0.02, 'method': 'depth'})
     """
 
     gamma: float = _library_default("gamma")
@@ -162,24 +192,38 @@ class DetectionParams:
     max_level: int = _library_default("max_level")
     keep_in_focus: bool = _library_default("keep_in_focus")
 
+    @property
+    def live_method(self):
+        """The method of the live Cv and mask: ``method`` if it is a Cv method, else
+        :data:`~napari_lfalias.presets.INTERACTIVE_METHOD` (one pass per focus change)."""
+        from ..presets import INTERACTIVE_METHOD
+
+        return self.method if self.method in CV_METHODS else INTERACTIVE_METHOD
+
     def detect_kwargs(self):
-        """Keyword arguments of ``detect_aliasing`` and ``reduce_aliasing``."""
+        """Keyword arguments of the live detection (``detect_aliasing`` with :attr:`live_method`)."""
         return {
             "gamma": self.gamma,
             "n_patterns": self.n_patterns,
             "threshold": self.threshold,
-            "method": self.method,
+            "method": self.live_method,
             "seed": self.seed,
         }
 
+    def reduce_kwargs(self):
+        """Keyword arguments of ``reduce_aliasing``: those its ``method`` uses (the disparity comes apart)."""
+        if self.method in CV_METHODS:
+            return {**self.detect_kwargs(), "max_level": self.max_level, "keep_in_focus": self.keep_in_focus}
+        return {"threshold": self.threshold, "method": self.method}
+
     def detection_key(self, slope):
-        """What a Cv depends on (everything but the threshold and the pyramid depth)."""
-        monte_carlo = self.method == "monte_carlo"
+        """What a live Cv depends on (everything but the threshold and the pyramid depth)."""
+        monte_carlo = self.live_method == "monte_carlo"
         return (
             float(slope),
             self.gamma,
             self.n_patterns if monte_carlo else None,
-            self.method,
+            self.live_method,
             self.seed if monte_carlo else None,
         )
 
@@ -233,6 +277,24 @@ def focus_range(lf):
     return span
 
 
+@dataclass(frozen=True)
+class Reduced:
+    """The result of :meth:`AliasingSession.reduce`.
+
+    Attributes
+    ----------
+    reduction : Reduction
+        What ``reduce_aliasing`` returns.
+    antialiased : ndarray (Y, X, C) or None
+        With the disparity-guided method: the dense-aperture rendering at
+        the same slope (``antialiased_refocus(lf, slope, disparity)``),
+        which the reduction made anyway; ``None`` with a Cv method.
+    """
+
+    reduction: object
+    antialiased: np.ndarray | None = None
+
+
 class AliasingSession:
     """Refocus, detection and reduction of one light field, with caches.
 
@@ -248,6 +310,7 @@ class AliasingSession:
         self._detector = None
         self._lock = threading.Lock()
         self._last = None  # (detection key, Detection)
+        self._estimate = None  # the light field's DisparityEstimate, once computed
         self._pyramid = None  # the light field's pyramid down to the coarsest preview level
         self._coarser = 0  # 1 while previews on the base level take longer than their budget
         self._previews = 0  # previews made at the current level
@@ -263,10 +326,17 @@ class AliasingSession:
         """The session's AliasingDetector, or ``None`` before the first job made it."""
         return self._detector
 
+    @property
+    def estimate(self):
+        """The light field's :class:`~napari_lfalias.disparity.DisparityEstimate`, or ``None`` before
+        :meth:`disparity` has made it."""
+        return self._estimate
+
     def close(self):
-        """Drop the detector and the kept detection (a running job keeps its own reference)."""
+        """Drop the detector, the disparity and the kept detection (a running job keeps its own reference)."""
         self._detector = None
         self._last = None
+        self._estimate = None
         self._pyramid = None
 
     # -- the kept detection ----------------------------------------------------
@@ -445,23 +515,60 @@ class AliasingSession:
         slope = float(slope)
         return self._job(lambda detector: self._detect(detector, slope, params))
 
+    def disparity(self):
+        """Estimate the light field's disparity, once, and hand it to the detector.
+
+        Returns a job that yields ``(done, total, stage)`` after each stage
+        of :func:`~napari_lfalias.disparity.iter_estimate_disparity` (so
+        stopping it stops the estimate between two stages) and returns the
+        :class:`~napari_lfalias.disparity.DisparityEstimate`, equal to
+        ``estimate_disparity(lf)``. The estimate is kept: later calls
+        return it at once. The detector is free meanwhile (the estimate
+        needs only the views), so focus changes go on detecting.
+        """
+        detector = yield from self._ready((0, 5, "reading the light field"))
+        return (yield from self._disparity_of(detector))
+
+    def _disparity_of(self, detector):
+        if self._estimate is None:
+            from ..disparity import iter_estimate_disparity
+
+            estimate = yield from iter_estimate_disparity(detector.lf)  # closed with this job
+            yield from self._locked((5, 5, "handing it to the detector"),
+                                    lambda: detector.use_disparity(estimate))
+            self._estimate = estimate
+        return self._estimate
+
     def reduce(self, slope, params):
-        """Reduce aliasing at ``slope`` (Algorithm 2) with the session's detector.
+        """Reduce aliasing at ``slope`` with the session's detector and ``params.method``.
 
         Returns a job that yields ``(done, total)`` after each stage of the
         reduction (:func:`~napari_lfalias.reduce.iter_reduce_aliasing`) and
-        returns the Reduction; stopping the job stops the reduction at the
-        next stage.
+        returns a :class:`Reduced`; stopping the job stops the reduction at
+        the next stage. With the disparity-guided method the session's
+        disparity is used (estimated first, with its stages, if
+        :meth:`disparity` has not made it yet), so the reduction is
+        ``reduce_aliasing(lf, slope, disparity=estimate_disparity(lf))``; it
+        comes first as a :class:`~._jobs.Partial` ``Reduced``, then one
+        more stage renders ``antialiased_refocus(lf, slope, estimate)`` (the
+        public function, whatever the reduction's own rendering does).
         """
         from ..reduce import iter_reduce_aliasing
+        from ..render import antialiased_refocus
 
         slope = float(slope)
         detector = yield from self._ready((0, 2))
+        guided = params.method not in CV_METHODS
+        if guided:
+            estimate = yield from self._disparity_of(detector)
         # the core's own steps: progress per stage, and a quit() takes effect between two of them
-        stages = iter_reduce_aliasing(detector.source, slope, max_level=params.max_level,
-                                      keep_in_focus=params.keep_in_focus, detector=detector,
-                                      **params.detect_kwargs())
-        return (yield from self._stepwise(stages, (0, 2)))
+        stages = iter_reduce_aliasing(detector.source, slope, detector=detector, **params.reduce_kwargs())
+        if not guided:
+            return Reduced((yield from self._stepwise(stages, (0, 2))))
+        reduction = yield from self._stepwise(_one_more_stage(stages), (0, 2))
+        yield Partial(Reduced(reduction))
+        # needs only the views: the detector stays free for focus changes
+        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate))
 
     def _stepwise(self, stages, waiting):
         """Run the generator ``stages`` one step at a time under the lock, free between steps.

@@ -53,10 +53,10 @@ def _detect(lf):
     from ..detect import AliasingDetector, detect_aliasing
 
     detector = AliasingDetector(lf, skip_flat=False)  # as the widget's session makes it
-    detector.detect(0.5)
-    detector.detect(0.5, level=1)  # previews and the reduction's levels
+    detector.detect(0.5, method="analytic")  # the live Cv (presets.INTERACTIVE_METHOD)
+    detector.detect(0.5, method="analytic", level=1)  # previews and the reduction's levels
     detector.detect(0.5, method="monte_carlo", n_patterns=4, seed=0)
-    detect_aliasing(lf, 0.5, threshold=0.5)  # flat tiles skipped: the tiled moments
+    detect_aliasing(lf, 0.5, threshold=0.5, method="analytic")  # flat tiles skipped: the tiled moments
 
 
 def _pyramid(lf):
@@ -76,12 +76,27 @@ def _fusion(lf):
     fuse_gradients(base, [base * 0.5], labels, screen=0.25)
 
 
+def _disparity(lf):
+    """The disparity estimate and the dense-aperture rendering (the default method's reduction)."""
+    import numpy as np
+
+    from ..disparity import estimate_disparity
+    from ..lightfield import LightField
+    from ..render import antialiased_refocus
+
+    # 192 px a side: the estimate's coarse-to-fine path runs too (one coarse level)
+    small = LightField(np.random.default_rng(1).random((3, 3, 192, 192, 3), dtype=np.float32))
+    estimate = estimate_disparity(small, disparity_range=(-1.0, 1.0))
+    antialiased_refocus(small, 0.5, estimate)
+
+
 #: What is made ready, in order: (name, function of the tiny light field).
 STEPS = (
     ("refocus", _refocus),
     ("aliasing detection", _detect),
     ("pyramid", _pyramid),
     ("gradient-domain fusion", _fusion),
+    ("disparity estimate and dense-aperture rendering", _disparity),
 )
 
 

@@ -4,12 +4,27 @@ Controls follow DESIGN section 6: a light-field layer, the focus (slope),
 the relaxation gamma, N, T, the method, the pyramid depth and the seed;
 their defaults are the library's (:func:`~._session.library_defaults`).
 Outputs are layers tagged ``layer.metadata["lfalias"]`` (``"refocus"``,
-``"cv"``, ``"mask"``, ``"level"``, ``"fused"``), updated in place and laid
-out by the rules of :mod:`._layers`: the aliased pixels as a translucent
-mask over the refocused image, the Cv hidden until asked for (then opaque,
-with a colorbar and contrast that follows it), the reduced result beside
-the refocused image with its level map (legend in the widget). Each
-output's parameters are in ``layer.metadata["lfalias_params"]``.
+``"cv"``, ``"mask"``, ``"level"``, ``"fused"``, ``"disparity"``,
+``"antialiased"``), updated in place and laid out by the rules of
+:mod:`._layers`: the aliased pixels as a translucent mask over the
+refocused image, the Cv and the disparity hidden until asked for (then
+opaque, with a colorbar and contrast that follows them), the reduced
+result beside the refocused image with its level map (legend in the
+widget) and, with the dense-aperture method, the anti-aliased rendering
+(hidden, in the same place). Each output's parameters are in
+``layer.metadata["lfalias_params"]``; the reduced, level and anti-aliased
+layers belong to one focus and are removed when the refocus moves on.
+
+The method is the library's: by default the disparity-guided one
+(``"depth"``). Its disparity is estimated once per light field in a
+worker that reports each stage and stops between two of them on Cancel
+(:meth:`~._session.AliasingSession.disparity`), then handed to the
+session's detector; "Reduce aliasing" uses it. The focus stays live
+throughout: the live Cv and mask use the exact Cv
+(:data:`~napari_lfalias.presets.INTERACTIVE_METHOD`, one pass per focus
+change) unless a Cv method is chosen; after a disparity-guided reduction
+the mask shows the pixels it replaced, and a line in the widget always
+says which detection the mask shows.
 
 Focus and T are live: moving the focus refocuses and (exact method)
 re-detects in a worker thread, both shown together (one redraw); a large
@@ -47,7 +62,6 @@ from ._controls import LogSlider, report_failure
 from ._depth import depth_label
 from ._jobs import JobRunner
 from ._layers import (
-    LEVEL_COLOURS,
     PARAMS_KEY,
     ROLES,
     SOURCE_KEY,
@@ -59,53 +73,24 @@ from ._layers import (
     placement,
     show_output,
 )
-from ._session import AliasingSession, DetectionParams, Preview, focus_range
+from ._session import CV_METHODS, AliasingSession, DetectionParams, Preview, focus_range
+from ._wording import (
+    METHODS,
+    TOOLTIPS,
+    disparity_summary,
+    level_legend,
+    mask_description,
+    stage_text,
+    threshold_meaning,
+)
 
 __all__ = ["AliasingWidget", "METHODS", "TOOLTIPS"]
 
-#: The method combo's entries: what the user reads -> the library's ``method``.
-METHODS = {"exact (analytic)": "analytic", "Monte Carlo (the paper)": "monte_carlo"}
 PROGRESS_STEPS = 100
 #: How often the widget looks at the kernels' warm-up while it runs (ms).
 WARMUP_POLL_MS = 250
-
-#: What each control means (measured numbers from benchmarks/results/detection.md).
-TOOLTIPS = {
-    "layer": "The light-field layer to work on (any layer opened by this plugin's readers or samples).",
-    "focus": "Disparity brought into focus, in pixels per view step: a scene point that moves this "
-             "much between neighbouring views is sharp in the refocused image. The range comes from "
-             "the data's disparities, else from its geometry.",
-    "gamma": "Relaxation \u03b3 of Algorithm 1 (not the display gamma of a layer): each random "
-             "sampling pattern keeps between (1 - \u03b3) n and n of the n views. A larger \u03b3 "
-             "raises every Cv: Cv = \u221ac \u00d7 (spread of the views / their mean), "
-             "\u221ac = 0.042 for 8 x 8 views at \u03b3 = 0.2, 0.079 at \u03b3 = 0.5.",
-    "n": "Patterns N of the Monte-Carlo estimate (the paper's method only; the exact method is its "
-         "N \u2192 \u221e limit). Measured on 8 x 8 views: the Monte-Carlo Cv deviates 26 % from the "
-         "exact Cv at N = 10, 7 % at N = 100.",
-    "threshold": "A pixel is aliased where its Cv exceeds T. The line below says what T means for "
-                 "this light field. Measured against ground truth (the naive refocus 2 % off the "
-                 "dense-aperture image): T between 0.001 and 0.004 finds visible aliasing best "
-                 "(F1 0.49-0.96); the paper's T = 0.02 finds little of it on 8 x 8 views "
-                 "(F1 0.01-0.02). Type a value or drag (logarithmic).",
-    "method": "exact (analytic): the Cv the paper's estimate tends to for N \u2192 \u221e, in one "
-              "pass, no sampling noise. Monte Carlo (the paper): N random patterns, seeded.",
-    "level": "Coarsest pyramid level of the reduction (Algorithm 2): an aliased pixel is replaced "
-             "by the first level, up to this one, where it is no longer aliased; level l blurs "
-             "over about 2^l pixels.",
-    "seed": "Seed of the Monte-Carlo patterns: the same seed gives the API's detect_aliasing(..., "
-            "seed=...) result exactly.",
-    "keep": "Reduce only the occluder where a defocused object partly hides an in-focus surface, "
-            "and keep that surface sharp (beyond the paper; measured: +5.5 dB there at T = 0.005, "
-            "up to 1.5 dB lost over the image at T = 0.02).",
-    "live": "Recompute as the controls move; off: only Detect does.",
-    "detect": "Refocus and detect aliasing with the current settings.",
-    "reduce": "Reduce the aliasing (Algorithm 2): the reduced image appears beside the refocused one.",
-    "cancel": "Stop the running computation; its result is dropped.",
-    "depth": "Where the calibration allows it: the distance (camera arrays with HCI parameters) or the "
-             "axial position (light-field microscopes) of the plane in focus.",
-    "beside": "Show the reduced image (and its level map) beside the refocused image; "
-              "off: over it, to compare by toggling.",
-}
+#: Outputs that belong to one focus: removed when the refocused image moves to another.
+FOCUS_RESULTS = ("fused", "level", "antialiased")
 
 
 def scale_bar(viewer):
@@ -113,13 +98,6 @@ def scale_bar(viewer):
     canvas = getattr(viewer, "canvas", None)
     overlays = getattr(canvas, "overlays", None)
     return overlays.scale_bar if overlays is not None else viewer.scale_bar
-
-
-def _level_legend(highest):
-    swatches = " ".join(
-        f'<span style="color:{LEVEL_COLOURS[level]}">\u25a0</span> {level}' for level in range(1, highest + 1)
-    )
-    return f"level map (a layer beside the refocused image): {swatches} (level l blurs over ~2^l px)"
 
 
 class AliasingWidget(QWidget):
@@ -150,6 +128,7 @@ class AliasingWidget(QWidget):
         self._followed = set()  # ids of the light-field layers whose renames are followed
         self._closed = False
         self._first_result = False  # the first focus job of a light field (reads it, makes its caches)
+        self._reduce_waiting = False  # "Reduce aliasing" was pressed; it starts once the disparity is ready
         self._status_text = ""
         self.jobs = JobRunner(
             on_progress=self._on_progress, on_error=self._on_error, on_idle=self._on_idle, owner=self
@@ -185,6 +164,8 @@ class AliasingWidget(QWidget):
         for text, method in METHODS.items():
             self.method_combo.addItem(text, method)
         self.method_combo.setCurrentIndex(self.method_combo.findData(defaults.method))
+        self.mask_source = QLabel("")
+        self.disparity_state = QLabel("not estimated")
         self.level_spin = QSpinBox()
         self.level_spin.setRange(1, 8)
         self.level_spin.setValue(defaults.max_level)
@@ -208,7 +189,8 @@ class AliasingWidget(QWidget):
         self.status.setWordWrap(True)
         self.legend = QLabel("")
         self.legend.setVisible(False)
-        for label in (self.status, self.legend, self.threshold_hint, self.depth_label):
+        for label in (self.status, self.legend, self.threshold_hint, self.depth_label, self.mask_source,
+                      self.disparity_state):
             # long messages wrap instead of widening the dock (and shrinking the canvas)
             label.setWordWrap(True)
             label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
@@ -218,6 +200,7 @@ class AliasingWidget(QWidget):
             (self.gamma_spin, "gamma"),
             (self.n_spin, "n"), (self.threshold_slider, "threshold"), (self.threshold_hint, "threshold"),
             (self.method_combo, "method"), (self.level_spin, "level"), (self.seed_spin, "seed"),
+            (self.mask_source, "mask"), (self.disparity_state, "disparity"),
             (self.keep_check, "keep"), (self.live_check, "live"), (self.update_button, "detect"),
             (self.reduce_button, "reduce"), (self.cancel_button, "cancel"), (self.beside_check, "beside"),
         )
@@ -232,6 +215,8 @@ class AliasingWidget(QWidget):
         form.addRow("threshold T", self.threshold_slider)
         form.addRow("", self.threshold_hint)
         form.addRow("method", self.method_combo)
+        form.addRow("mask shows", self.mask_source)
+        form.addRow("disparity", self.disparity_state)
         form.addRow("patterns N", self.n_spin)
         form.addRow("seed", self.seed_spin)
         form.addRow("coarsest level", self.level_spin)
@@ -267,8 +252,9 @@ class AliasingWidget(QWidget):
         self.update_button.clicked.connect(self.update_now)
         self.reduce_button.clicked.connect(self.reduce)
         self.cancel_button.clicked.connect(self.cancel)
-        self._enable_sampling()
+        self._enable_controls()
         self._show_threshold_meaning()
+        self._show_mask_source(self.params().live_method)
 
     # -- the light-field layer ---------------------------------------------------
     def _refresh_layers(self, event=None):
@@ -319,6 +305,7 @@ class AliasingWidget(QWidget):
         self._stop_reduction("another light field was chosen")
         self.jobs.cancel()
         self._close_session()
+        self.disparity_state.setText("not estimated")
         lf = lightfield_of(layer) if layer is not None else None
         if lf is None:
             self._source_layer = None
@@ -341,7 +328,7 @@ class AliasingWidget(QWidget):
         self._set_status(f"{layer.name}: {lf.grid_shape[0]}x{lf.grid_shape[1]} views of "
                          f"{lf.image_shape[0]}x{lf.image_shape[1]}; {then}")
         if live:
-            self.update_now()
+            self.update_now()  # the first result starts the disparity estimate (dense-aperture method)
 
     # -- parameters -----------------------------------------------------------------
     @property
@@ -351,11 +338,11 @@ class AliasingWidget(QWidget):
 
     @property
     def method(self):
-        """The library's name of the chosen method (``"analytic"`` or ``"monte_carlo"``)."""
+        """The library's name of the chosen method (``"depth"``, ``"analytic"`` or ``"monte_carlo"``)."""
         return self.method_combo.currentData()
 
     def set_method(self, method):
-        """Choose the method by the library's name (``"analytic"`` or ``"monte_carlo"``)."""
+        """Choose the method by the library's name (``"depth"``, ``"analytic"`` or ``"monte_carlo"``)."""
         self.method_combo.setCurrentIndex(self.method_combo.findData(method))
 
     def params(self):
@@ -377,25 +364,25 @@ class AliasingWidget(QWidget):
         self.depth_label.setVisible(bool(text))
 
     def _show_threshold_meaning(self):
-        """What T means for this light field: the spread of the views it flags (Cv = sqrt(c) x spread)."""
-        from ..detect import variance_factors
-
+        """What T means for this light field (:func:`~._wording.threshold_meaning`)."""
         if self.session is None:
             self.threshold_hint.setText("")
             return
-        n = self.session.source_lf.n_views
-        gamma = float(self.gamma_spin.value())
-        root_c = float(np.sqrt(variance_factors(n, gamma)[n]))
-        spread = self.threshold_slider.value() / root_c if root_c > 0 else float("inf")
-        self.threshold_hint.setText(
-            f"aliased where the views spread by more than {spread:.0%} of their mean "
-            f"({n} views, \u03b3 = {gamma:g}: Cv = {root_c:.3f} \u00d7 spread)"
-        )
+        self.threshold_hint.setText(threshold_meaning(
+            self.session.source_lf.n_views, float(self.gamma_spin.value()), self.threshold_slider.value(),
+            guided=self.method not in CV_METHODS))
 
-    def _enable_sampling(self):
+    def _show_mask_source(self, method, slope=None):
+        """Say which detection the mask layer shows (a live Cv ``method``, or ``"depth"`` at ``slope``)."""
+        self.mask_source.setText(mask_description(method, slope, int(self.n_spin.value())))
+
+    def _enable_controls(self):
+        """Enable the controls the chosen method uses (N and seed: Monte Carlo; pyramid: Cv methods)."""
         monte_carlo = self.method == "monte_carlo"
         for spin in (self.n_spin, self.seed_spin):
             spin.setEnabled(monte_carlo)
+        for control in (self.level_spin, self.keep_check):
+            control.setEnabled(self.method in CV_METHODS)
 
     # -- reactions to the controls --------------------------------------------------
     def _on_focus(self, _value=None):
@@ -424,8 +411,10 @@ class AliasingWidget(QWidget):
             self.detect()
 
     def _on_method(self, _index=None):
-        self._enable_sampling()
+        self._enable_controls()
         self._on_detection_params()
+        if self.method not in CV_METHODS and self.live_check.isChecked():
+            self.estimate_disparity()
 
     def _on_sampling_params(self, _value=None):
         if self.method == "monte_carlo":  # the exact Cv depends on neither N nor the seed
@@ -457,32 +446,61 @@ class AliasingWidget(QWidget):
         self._busy("detect")
 
     def reduce(self):
-        """Reduce aliasing with the current controls (Algorithm 2) in a worker.
+        """Reduce aliasing with the current controls and method in a worker.
 
         A reduction already running is stopped (and said so); this one
-        replaces it.
+        replaces it. With the disparity-guided method and no disparity yet,
+        the disparity is estimated first (:meth:`estimate_disparity`) and
+        the reduction starts when it is ready.
         """
+        if self.session is not None and self.method not in CV_METHODS and self.session.estimate is None:
+            self._reduce_waiting = True
+            self.estimate_disparity()
+            self.cancel_button.setEnabled(True)
+            self._set_status(f"reducing aliasing at slope {self.slope:.2f} once the disparity is ready "
+                             "(estimated once per light field)...")
+            return
         replaced = self.jobs.busy("reduce")
         self.jobs.submit("reduce", self._reduce_job)
         if self._busy("reduce"):
             note = " (the running reduction was stopped)" if replaced else ""
             self._set_status(f"reducing aliasing at slope {self.slope:.2f}...{note}")
 
+    def estimate_disparity(self):
+        """Estimate the light field's disparity in a worker, once per light field.
+
+        Progress is reported per stage (the bar and the *disparity* line);
+        Cancel stops it between two stages. Nothing is done if the
+        estimate is kept or already running. When it is ready it goes to
+        the session's detector (for "Reduce aliasing" with the
+        dense-aperture method) and to the disparity layer.
+        """
+        if self.session is None or self.session.estimate is not None or self.jobs.busy("disparity"):
+            return
+        self.jobs.submit("disparity", self._disparity_job, lasting=True)  # the same for every focus and T
+        if self._busy("disparity"):
+            self.disparity_state.setText(stage_text(0, 5, "starting"))
+
     def cancel(self):
-        """Stop running jobs; their results are dropped.
+        """Stop running jobs (the disparity estimate too); their results are dropped.
 
         A job stops at its next step; a step already running in a numba
-        kernel (the reduction's solve) ends in the background, and its
-        result is dropped.
+        kernel (the reduction's solve, a stage of the disparity estimate)
+        ends in the background, and its result is dropped.
         """
+        self._reduce_waiting = False
+        if self.jobs.busy("disparity"):
+            self.disparity_state.setText("cancelled; it is estimated again when needed")
         self.jobs.cancel()
         self._set_status("cancelled")
 
     def _stop_reduction(self, reason):
-        """Stop a running reduction whose parameters no longer hold, and say so (status and notification)."""
+        """Stop a running (or waiting) reduction whose parameters no longer hold, and say so
+        (status and notification)."""
         from napari.utils.notifications import show_info
 
-        if self.jobs.stop("reduce"):
+        waiting, self._reduce_waiting = self._reduce_waiting, False
+        if self.jobs.stop("reduce") or waiting:
             message = f"reduction stopped: {reason}; press Reduce aliasing to reduce with the new settings"
             self._set_status(message)
             show_info(message)
@@ -520,7 +538,7 @@ class AliasingWidget(QWidget):
         if self.session is None:
             return None
         slope, params = self.slope, self.params()
-        exact = params.method == "analytic"
+        exact = params.live_method == "analytic"
         job = self.session.focus(slope, params, detect=exact)
         shown = []
 
@@ -539,7 +557,9 @@ class AliasingWidget(QWidget):
                 self._show_detection(detection, slope)
             else:
                 self.detect()  # Monte Carlo: in its own slot, with progress
-            self._first_result = False
+            first, self._first_result = self._first_result, False
+            if first and self.method not in CV_METHODS:
+                self.estimate_disparity()  # after the first refocus, which it would slow down
 
         return job, done, early
 
@@ -555,15 +575,39 @@ class AliasingWidget(QWidget):
             return None
         slope, params = self.slope, self.params()
         job = self.session.reduce(slope, params)
+        shown = []
 
-        def done(reduction):
-            if params != self.params():
+        def reduced_first(reduced):  # the dense-aperture method: the reduction before the anti-aliased image
+            self._show_reduction(reduced, slope, params)
+            shown.append(True)
+
+        def done(reduced):
+            if params != self.params() or slope != self.slope:
                 self._set_status("reduction dropped: the settings changed while it ran; press Reduce "
                                  "aliasing again")
                 return
-            self._show_reduction(reduction, slope, params)
+            if not shown:
+                self._show_reduction(reduced, slope, params)
+            if reduced.antialiased is not None:
+                self._show("antialiased", self._image(reduced.antialiased), self._meta(slope, params),
+                           contrast_limits=self._source_contrast())
 
-        return job, done
+        return job, done, reduced_first
+
+    def _disparity_job(self):
+        session = self.session
+        if session is None:
+            return None
+
+        def done(estimate):
+            if session is not self.session:  # another light field was chosen meanwhile
+                return
+            self._show_disparity(estimate)
+            if self._reduce_waiting:
+                self._reduce_waiting = False
+                self.reduce()
+
+        return session.disparity(), done
 
     # -- outputs ---------------------------------------------------------------------------
     def _meta(self, slope, params=None, **extra):
@@ -589,6 +633,10 @@ class AliasingWidget(QWidget):
         """A new output layer: stop drawing what it covers, and frame what is to be seen."""
         if role == "refocus":
             self._source_layer.visible = False  # the opaque refocused image covers the views
+            earlier = [self.viewer.layers.index(other) for other in output_layers(self.viewer, self.source)
+                       if other is not layer]
+            if earlier:  # made after an output that lies over it (a quick disparity): go under it
+                self.viewer.layers.move(self.viewer.layers.index(layer), min(earlier))
         if role in ("refocus", "fused"):
             if placement(self._source_layer, role)["units"][0] != "pixel":
                 scale_bar(self.viewer).visible = True
@@ -600,15 +648,33 @@ class AliasingWidget(QWidget):
     def _show_refocus(self, image, slope, **extra):
         self._show("refocus", self._image(image), self._meta(slope, **extra),
                    contrast_limits=self._source_contrast())
+        self._drop_results_not_at(slope)
+
+    def _drop_results_not_at(self, slope):
+        """Remove the outputs of one focus (:data:`FOCUS_RESULTS`) made at another slope than ``slope``."""
+        from napari.utils.notifications import show_info
+
+        stale = [layer for layer in output_layers(self.viewer, self.source)
+                 if layer.metadata["lfalias"] in FOCUS_RESULTS
+                 and (layer.metadata.get(PARAMS_KEY) or {}).get("slope") != float(slope)]
+        if not stale:
+            return
+        old = stale[0].metadata[PARAMS_KEY]["slope"]
+        for layer in stale:
+            self.viewer.layers.remove(layer)
+        self.legend.setVisible(False)
+        show_info(f"the reduced result of focus {old:.2f} was removed: the focus moved to {slope:.2f}; "
+                  "press Reduce aliasing for this focus")
 
     def _show_preview(self, preview, slope, params):
         """The coarse first result of a focus change (refined by the full one)."""
         self._show_refocus(preview.image, slope, preview=preview.level)
         if preview.cv is not None:
-            meta = self._meta(slope, params, preview=preview.level)
+            meta = self._meta(slope, params, preview=preview.level, method=params.live_method)
             self._show("cv", preview.cv, meta,
                        contrast_limits=adaptive_limits(preview.cv, at_least=2 * params.threshold))
             self._show("mask", preview.mask.astype(np.uint8), meta)
+            self._show_mask_source(params.live_method)
         self._set_status(f"slope {slope:.2f}: preview at 1/{2**preview.level} of the resolution...")
         QTimer.singleShot(0, preview.shown.set)  # after the canvas' repaint, which is already queued
 
@@ -621,7 +687,7 @@ class AliasingWidget(QWidget):
         """
         params = self.params()
         detection = self.session.detection(slope, params) or detection
-        meta = self._meta(slope, params)
+        meta = self._meta(slope, params, method=params.live_method)
         if with_cv:
             self._show("cv", detection.cv, meta,
                        contrast_limits=adaptive_limits(detection.cv, at_least=2 * params.threshold))
@@ -630,20 +696,38 @@ class AliasingWidget(QWidget):
             if cv_layer is not None:
                 cv_layer.metadata[PARAMS_KEY] = meta
         self._show("mask", detection.mask.astype(np.uint8), meta)
+        self._show_mask_source(params.live_method)
         aliased = float(np.mean(detection.mask)) * 100
         self._set_status(f"slope {slope:.2f}: {aliased:.1f}% of pixels aliased (magenta; T = "
                          f"{params.threshold:.4g}; the Cv layer is hidden until you show it)")
 
-    def _show_reduction(self, reduction, slope, params):
+    def _show_reduction(self, reduced, slope, params):
+        """The reduced image and its level map; with the dense-aperture method also the reduction's own
+        detection as the mask."""
+        reduction = reduced.reduction
         meta = self._meta(slope, params)
         self._show("fused", self._image(reduction.image), meta, contrast_limits=self._source_contrast())
         self._show("level", reduction.level, meta)
         highest = int(np.max(reduction.level))
-        self.legend.setText(_level_legend(max(highest, 1)))
+        self.legend.setText(level_legend(max(highest, 1)))
         self.legend.setVisible(True)
         side = "right" if self.beside_check.isChecked() else "over the refocused image"
-        self._set_status(f"reduced at slope {slope:.2f} ({side}): "
-                         f"{float(np.mean(reduction.level > 0)):.1%} of pixels from levels up to {highest}")
+        share = float(np.mean(reduction.level > 0))
+        if params.method in CV_METHODS:
+            self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels from levels up "
+                             f"to {highest}")
+            return
+        self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
+        self._show_mask_source(params.method, slope)
+        self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels (magenta) take what a "
+                         "dense aperture records; the whole anti-aliased rendering goes to a hidden layer")
+
+    def _show_disparity(self, estimate):
+        params = {"disparity_range": [float(v) for v in estimate.disparity_range],
+                  "seconds": float(sum(estimate.params.get("seconds", {}).values()))}
+        self._show("disparity", estimate.disparity, params,
+                   contrast_limits=adaptive_limits(estimate.disparity, from_zero=False))
+        self.disparity_state.setText(disparity_summary(estimate))
 
     def _place_outputs(self, _checked=None):
         """Move the outputs beside (or over) the refocused image, as the check box says."""
@@ -694,13 +778,19 @@ class AliasingWidget(QWidget):
             self.progress.setValue(0)
         return busy
 
-    def _on_progress(self, slot, done, total):
+    def _on_progress(self, slot, done, total, stage=None):
         if slot != "focus" and self.progress.maximum() != 0:
             self.progress.setValue(int(PROGRESS_STEPS * done / max(total, 1)))
+        if slot == "disparity" and stage is not None:
+            self.disparity_state.setText(stage_text(done, total, stage))
 
     def _on_error(self, slot, error):
-        report_failure(self.status, slot, error)
+        what = "estimating the disparity" if slot == "disparity" else slot
+        message = report_failure(self.status, what, error)
         self._status_text = self.status.text()
+        if slot == "disparity":
+            self._reduce_waiting = False  # the reduction that waited for it cannot run
+            self.disparity_state.setText(message)
 
     def _on_idle(self):
         self.cancel_button.setEnabled(False)

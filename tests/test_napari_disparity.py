@@ -226,7 +226,7 @@ def test_reduce_with_the_depth_method_is_the_apis_reduction_and_follows_the_focu
     assert viewer.layers.index(antialiased) > viewer.layers.index(fused)
     # the mask now shows what the reduction replaced, and the widget says so
     mask = find_output_layer(viewer, "mask")
-    np.testing.assert_array_equal(mask.data.astype(bool), expected.level > 0)
+    np.testing.assert_array_equal(mask.data.astype(bool), expected.detections[0].mask)
     assert mask.metadata["lfalias_params"]["method"] == "depth"
     assert widget.mask_source.text() == "pixels Reduce aliasing replaced at focus 4.00 (predicted error > T)"
     # the Cv layer is still the live exact Cv

@@ -227,7 +227,7 @@ def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first
     image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
     share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
     trust = np.divide(trust, den, out=np.zeros_like(den), where=seen)
-    naive = stack.mean()
+    naive = refocus(lf, slope)
     in_focus = (np.abs(disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
     image = np.where((in_focus | ~seen)[..., None], naive, image).astype(np.float32)
     return Rendering(image, share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
@@ -259,8 +259,16 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
     Raises
     ------
     ParameterError
-        For a disparity of the wrong shape or with NaN/Inf, or bad
-        parameters.
+        For a disparity of the wrong shape, not real, or with NaN/Inf, or
+        bad parameters.
+
+    Notes
+    -----
+    This is the rendering the default reduction puts in its aliased pixels
+    (:class:`~napari_lfalias.depth_guided.DepthGuide`): surfaces the views
+    themselves show in focus at ``slope``
+    (:class:`~napari_lfalias.disparity.FocusTest`) are rendered in focus
+    whatever the disparity says there.
 
     Examples
     --------
@@ -272,20 +280,11 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
     >>> image.shape
     (64, 64, 3)
     """
-    from .baselines import _larger_is_nearer
-    from .disparity import disparity_and_confidence, estimate_disparity
+    from .depth_guided import DepthGuide
 
     if not isinstance(lf, LightField):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
-    lf = lf.compute() if lf.is_lazy else lf
     slope = _validate.finite_float("slope", slope)
-    _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
-    if disparity is None:
-        disparity = estimate_disparity(lf)
-    disparity, confidence = disparity_and_confidence(disparity, lf.image_shape)
-    if nearer == "auto":
-        larger_first = _larger_is_nearer(np.ascontiguousarray(lf.views()),
-                                         np.ascontiguousarray(lf.flat_positions()), disparity)
-    else:
-        larger_first = nearer == "larger"
-    return render_dense_aperture(lf, slope, disparity, confidence, larger_first=larger_first).image
+    guide = DepthGuide(lf, disparity, nearer=nearer)
+    guide.estimate  # a bad disparity is named before any rendering
+    return guide.rendering(slope).image

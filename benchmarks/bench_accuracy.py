@@ -81,7 +81,7 @@ def evaluate(case, slope, images_dir=None):
     if "estimate" not in case.extra:
         case.extra["estimate"], case.extra["estimate_s"] = _timed(lambda: lfa.estimate_disparity(lf))
     res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, disparity=case.extra["estimate"]))
-    results["default"] = (res.image, seconds, res.cv, res.level > 0)
+    results["default"] = (res.image, seconds, res.cv, res.detections[0].mask)
     res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, preset="paper", seed=0))
     results["paper"] = (res.image, seconds, res.cv, res.detections[0].mask)
     res, seconds = _timed(lambda: lfa.reduce_aliasing(lf, slope, method="analytic", threshold=ANALYTIC_T))

@@ -55,6 +55,7 @@ import json
 import os
 import statistics
 import subprocess
+import tempfile
 import sys
 import textwrap
 import time

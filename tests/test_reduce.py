@@ -115,8 +115,6 @@ def test_coarser_levels_are_only_computed_where_pixels_are_still_aliased(room, m
 
 
 def test_the_steps_report_progress_and_give_the_same_result(room):
-    from napari_lfalias.reduce import iter_reduce_aliasing
-
     steps = iter_reduce_cv(room.lightfield, 4.0, threshold=0.005, max_level=3)
     progress = []
     while True:

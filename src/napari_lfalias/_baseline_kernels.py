@@ -2,11 +2,8 @@
 
 - a separable box filter with fractional widths (running sums, zero
   outside the image), for one image or every view in parallel;
-- the depth-aware renderer's pieces: the spread of the views at each
-  pixel's own disparity (which side of a depth edge is in front), the
-  centre view's layer map forward-warped into every view (nearest layer
-  wins, disocclusions filled from the farther side), and the colour of
-  one disparity layer gathered from the views that see it.
+- the spread of the views at each pixel's own disparity (which side of a
+  depth edge is in front).
 
 Views are ``(n, Y, X, C)`` float32; bilinear samples outside a view carry
 no weight, as in :mod:`napari_lfalias._kernels`.
@@ -14,14 +11,13 @@ no weight, as in :mod:`napari_lfalias._kernels`.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from numba import njit, prange
 
 from ._kernels import bilinear_point
 
-__all__ = ["box_image", "box_views", "view_spread", "warp_layers", "layer_colour"]
+__all__ = ["box_image", "box_views", "view_spread"]
 
 
 # -- box filter -----------------------------------------------------------------------
@@ -123,98 +119,3 @@ def view_spread(views, positions, disparity, pixels, out):
                 m2[c] += w * delta * (delta - share * delta)
         out[k] = m2.sum() / wsum if wsum > 0.0 else 0.0
 
-
-@njit(cache=True, parallel=True)
-def warp_layers(rank, layer_disparity, positions, out):
-    """The centre view's layer ranks ``rank (Y, X)`` (0 = nearest) forward-warped into every view.
-
-    A pixel of layer rank ``r`` (disparity ``layer_disparity[r]``) lands
-    in view ``i`` at ``round(p + d * positions[i])``; the nearest layer
-    wins. Pixels no layer lands on (disocclusions) take the farther of the
-    layers at the two ends of their run along the row (one end at the
-    image's edge: that end). ``out (n, Y, X)`` int32.
-    """
-    n_rows, n_cols = rank.shape
-    n_layers = layer_disparity.shape[0]
-    hole = np.iinfo(np.int32).max
-    for i in prange(out.shape[0]):
-        target = out[i]
-        target[:] = hole
-        shift_y = np.empty(n_layers, np.int64)
-        shift_x = np.empty(n_layers, np.int64)
-        for r in range(n_layers):  # p is integral: round(p + s) = p + round(s)
-            shift_y[r] = int(math.floor(layer_disparity[r] * positions[i, 0] + 0.5))
-            shift_x[r] = int(math.floor(layer_disparity[r] * positions[i, 1] + 0.5))
-        for y in range(n_rows):
-            for x in range(n_cols):
-                r = rank[y, x]
-                ty = y + shift_y[r]
-                tx = x + shift_x[r]
-                if 0 <= ty < n_rows and 0 <= tx < n_cols and r < target[ty, tx]:
-                    target[ty, tx] = r
-        for y in range(n_rows):
-            x = 0
-            while x < n_cols:
-                if target[y, x] != hole:
-                    x += 1
-                    continue
-                start = x
-                while x < n_cols and target[y, x] == hole:
-                    x += 1
-                left = target[y, start - 1] if start > 0 else -1
-                right = target[y, x] if x < n_cols else -1
-                fill = max(left, right)
-                if fill < 0:
-                    fill = n_layers - 1
-                for k in range(start, x):
-                    target[y, k] = fill
-
-
-@njit(cache=True, parallel=True)
-def layer_colour(views, has_weight, positions, warped, r, d, y0, x0, needed, colour, count):
-    """Colour of the layer of rank ``r`` (disparity ``d``) on a window of the centre view.
-
-    For the window's pixel ``(y0 + a, x0 + b)`` every view whose warped
-    layer map shows rank ``r`` at ``round(p + d * q_i)`` contributes its
-    bilinear sample at ``p + d * q_i``: ``colour (A, B, C)`` is their
-    validity-weighted mean and ``count (A, B)`` their number (0: no view
-    sees the layer there); pixels not ``needed (A, B)`` are skipped. With
-    ``has_weight`` the views' last channel is the sample weight and the
-    others are premultiplied by it. Each window row reads one row pair of
-    each view in turn (cache friendly).
-    """
-    n, n_rows, n_cols, n_k = views.shape
-    n_ch = colour.shape[2]
-    width = colour.shape[1]
-    for a in prange(colour.shape[0]):
-        value = np.zeros(n_k)
-        total = np.zeros((width, n_ch))
-        wsum = np.zeros(width)
-        seen = np.zeros(width, np.int32)
-        y = y0 + a
-        for i in range(n):
-            sy = y + d * positions[i, 0]
-            ty = int(math.floor(sy + 0.5))
-            if ty < 0 or ty >= n_rows:
-                continue
-            shift_x = d * positions[i, 1]
-            for b in range(width):
-                if not needed[a, b]:
-                    continue
-                sx = x0 + b + shift_x
-                tx = int(math.floor(sx + 0.5))
-                if tx < 0 or tx >= n_cols or warped[i, ty, tx] != r:
-                    continue
-                w = bilinear_point(views[i], views[i, :, :, 0], False, sy, sx, value)
-                if has_weight:
-                    w = value[n_k - 1]
-                if w <= 0.0:
-                    continue
-                seen[b] += 1
-                wsum[b] += w
-                for c in range(n_ch):
-                    total[b, c] += value[c]
-        for b in range(width):
-            count[a, b] = seen[b]
-            for c in range(n_ch):
-                colour[a, b, c] = total[b, c] / wsum[b] if wsum[b] > 0.0 else 0.0

@@ -19,36 +19,14 @@ on this 2-core machine.
 Depth-aware rendering (after Yu et al. 2010)
 --------------------------------------------
 :func:`depth_aware_refocus` knows the disparity ``d(p)`` at the centre of
-the aperture and renders the defocus of a dense aperture directly, with a
-per-pixel defocus (circle-of-confusion) kernel: over a dense square
-aperture a point of disparity ``d`` spreads into a box of width
-``|d - slope| * extent`` pixels, ``extent`` the aperture's size along each
-axis (``U * spacing`` on a regular grid: the span of the view cells).
-
-1. The disparity map is cut into fronto-parallel layers (its distinct
-   values, or ``max_layers`` equal bins), ordered front to back.
-2. The centre view's layer map is forward-warped into every view (nearest
-   layer wins; disocclusions take the farther layer), so each view knows
-   which layer it sees where.
-3. Each layer's colour is gathered from the views that see it: at centre
-   pixel ``p`` the views whose warped map shows the layer at
-   ``p + d * q_i`` give their bilinear samples there. This covers the
-   layer where the centre view shows it, the parts a nearer layer hides
-   from the centre but not from every view, and the parts beyond the
-   centre view's edges that other views see; the layer's coverage is 1
-   where a view sees it.
-4. Each layer (premultiplied colour and coverage) is blurred by its box
-   and the layers are composited front to back ("over"): a sharp
-   foreground stays sharp and hides the background, a blurred foreground
-   spreads over the background it partly hides. Where no view saw
-   anything the composite is normalised by its coverage.
-
-In focus (``d = slope``) nothing is blurred and the result is the naive
-refocus of the views that see the point. Near depth edges the hard layer
-assignment meets the scenes' soft (anti-aliased) edges: errors there are
-a few percent within ~8 px of an edge. Cost: one pass over the views per
-layer, within each layer's reach (about 0.3-0.4 s for the two-layer brick
-room at 8x8x512x512x3 on this 2-core machine).
+the aperture and renders the defocus of a dense aperture directly: each
+view's samples are cut into disparity layers, each layer is blurred by the
+box its surface sweeps over the view's cell of the aperture,
+``|d - slope| * spacing`` px wide, and the layers are composited front to
+back. It is :func:`napari_lfalias.render.render_dense_aperture` (the
+renderer of the default reduction and of
+:func:`~napari_lfalias.antialiased_refocus`) given a disparity it trusts
+everywhere; the module notes of :mod:`napari_lfalias.render` describe it.
 
 Which side of a depth edge is in front follows from the views (``nearer
 ="auto"``): at an occlusion boundary the occluder is seen by every view
@@ -82,7 +60,7 @@ from .refocus import _KERNEL_LOCK, refocus
 __all__ = ["prefilter_refocus", "depth_aware_refocus", "prefilter_width", "view_spacing"]
 
 #: Disparity layers of :func:`depth_aware_refocus` at most (a continuous map is quantised).
-MAX_LAYERS = 32
+MAX_LAYERS = 32  # the renderer's MAX_BINS
 
 
 # -- geometry -------------------------------------------------------------------------
@@ -112,10 +90,6 @@ def view_spacing(positions):
     return float(np.median(dist.min(axis=1)))
 
 
-def _aperture_extent(positions, spacing):
-    """Size (y, x) of the aperture the views sample: their span plus one cell."""
-    flat = np.asarray(positions, np.float64).reshape(-1, 2)
-    return flat.max(axis=0) - flat.min(axis=0) + spacing
 
 
 def _disparity_range(lf, disparity_range):
@@ -180,9 +154,6 @@ def _box_taps(width):
     return n, (width - (2 * n + 1)) / 2.0
 
 
-def _box_area(width):
-    n, f = _box_taps(width)
-    return 2 * n + 1 + 2 * f
 
 
 def _kernels():
@@ -283,19 +254,6 @@ def _disparity_map(disparity, shape=None):
     return disparity
 
 
-def _layers(disparity, max_layers):
-    """Layer index of every pixel ``(Y, X)`` and each layer's disparity (distinct values, or equal bins)."""
-    values, index = np.unique(disparity, return_inverse=True)
-    if len(values) <= max_layers:
-        return index.reshape(disparity.shape), values
-    edges = np.linspace(values[0], values[-1], max_layers + 1)
-    index = np.clip(np.searchsorted(edges, disparity, side="right") - 1, 0, max_layers - 1)
-    counts = np.bincount(index.ravel(), minlength=max_layers)
-    sums = np.bincount(index.ravel(), weights=disparity.ravel(), minlength=max_layers)
-    used = counts > 0
-    # keep the bins that hold pixels, renumbered in increasing disparity
-    renumber = np.cumsum(used) - 1
-    return renumber[index], sums[used] / counts[used]
 
 
 def _depth_edges(disparity, jump):
@@ -339,23 +297,20 @@ def _larger_is_nearer(views, positions, disparity, jump=0.25, band=3, max_pixels
     return bool(sides[0] <= sides[1])
 
 
-def _window(rows, cols, reach_y, reach_x, shape):
-    """Slices of the bounding box of ``rows``/``cols`` indices grown by ``reach`` px, clipped to ``shape``."""
-    return (slice(max(rows[0] - reach_y, 0), min(rows[-1] + reach_y + 1, shape[0])),
-            slice(max(cols[0] - reach_x, 0), min(cols[-1] + reach_x + 1, shape[1])))
 
 
 def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_LAYERS):
     """Refocus with a known disparity map: layered per-pixel defocus (after Yu et al. 2010).
 
-    The disparity map is cut into fronto-parallel layers. Each layer's
-    colour is gathered from the views that see it (its centre-view pixels,
-    and the parts a nearer layer hides from the centre but not from every
-    view), blurred by the defocus box of a dense square aperture,
-    ``|d - slope| * extent`` px wide (``extent`` the aperture's size along
-    each axis, ``U`` view steps on a regular grid), and composited front to
-    back. In-focus layers are not blurred (sharp); a blurred foreground
-    spreads over the background it partly hides.
+    The dense-aperture renderer
+    (:func:`napari_lfalias.render.render_dense_aperture`) given a
+    disparity it trusts everywhere: every view's samples are cut into
+    disparity layers, each blurred by the box its surface sweeps over the
+    view's cell of the aperture, and composited front to back. In-focus
+    layers stay sharp; a blurred foreground spreads over the background it
+    partly hides. :func:`~napari_lfalias.antialiased_refocus` is the same
+    rendering with a disparity estimated from the views when none is
+    given, and surfaces the views show in focus kept in focus.
 
     Parameters
     ----------
@@ -386,100 +341,16 @@ def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_L
     >>> bool(np.allclose(image, 0.5))
     True
     """
+    from .render import render_dense_aperture
+
     lf = _lightfield(lf)
     slope = _validate.finite_float("slope", slope)
     _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
     max_layers = _validate.integer_at_least("max_layers", max_layers, 1)
     disparity = _disparity_map(disparity, lf.image_shape)
-    views = np.ascontiguousarray(lf.views())
-    positions = np.ascontiguousarray(lf.flat_positions())
-    index, centres = _layers(disparity, max_layers)
     if nearer == "auto":
-        larger_first = _larger_is_nearer(views, positions, disparity)
+        larger_first = _larger_is_nearer(np.ascontiguousarray(lf.views()), np.ascontiguousarray(lf.flat_positions()),
+                                         disparity)
     else:
         larger_first = nearer == "larger"
-    # rank 0 = nearest layer
-    order = np.argsort(-centres if larger_first else centres, kind="stable")
-    rank_of = np.empty(len(order), np.int32)
-    rank_of[order] = np.arange(len(order))
-    ranked_disparity = centres[order].astype(np.float64)
-    rank = rank_of[index].astype(np.int32)
-    warped = np.empty((len(views),) + lf.image_shape, np.int32)
-    weights = lf.flat_weights()
-    if weights is not None:
-        views = np.concatenate([views * weights[..., None], weights[..., None]], axis=-1)
-    with _KERNEL_LOCK:
-        _kernels().warp_layers(rank, ranked_disparity, positions, warped)
-    extent = _aperture_extent(lf.positions, view_spacing(lf.positions))
-    parallax = np.abs(positions).max()
-    # the layer may hide behind nearer ones up to the largest parallax away from where it shows
-    spread = np.abs(ranked_disparity[:, None] - ranked_disparity[None, :]).max(axis=1)
-    reach = np.ceil(spread * parallax).astype(int) + 2
-    # the views see up to this far beyond the centre view's edges: the canvas of the layers
-    pad = min(int(math.ceil(np.abs(ranked_disparity).max() * parallax)) + 1, max(lf.image_shape))
-    canvas = (lf.image_shape[0] + 2 * pad, lf.image_shape[1] + 2 * pad)
-    inside = (slice(pad, pad + lf.image_shape[0]), slice(pad, pad + lf.image_shape[1]))
-    outside = np.ones(canvas, bool)
-    outside[inside] = False
-    rank_canvas = np.full(canvas, len(ranked_disparity), np.int32)
-    rank_canvas[inside] = rank
-    colour = np.zeros(canvas + (lf.n_channels,), np.float32)
-    alpha = np.zeros(canvas + (1,), np.float32)
-    for r, d in enumerate(ranked_disparity):
-        visible = rank_canvas == r
-        if not visible.any():
-            continue
-        grow = int(reach[r])
-        gather = _window(np.flatnonzero(visible.any(axis=1)), np.flatnonzero(visible.any(axis=0)), grow, grow, canvas)
-        # its colour is needed where it shows, and where a nearer layer or the edge of the view may hide it
-        hidden = (rank_canvas[gather] < r) | outside[gather]
-        needed = visible[gather] | (hidden & _dilate(visible[gather], grow))
-        layer, coverage = _gather_layer(views, weights is not None, positions, warped, r, d, gather, needed,
-                                        lf.n_channels, pad)
-        _composite(layer, coverage, gather, np.abs(d - slope) * extent, colour, alpha)
-    colour, alpha = colour[inside], alpha[inside]
-    known = alpha > 1e-6
-    out = np.divide(colour, alpha, out=np.zeros_like(colour), where=known)
-    if not known.all():  # nothing seen by any view: the plain refocus
-        out = np.where(known, out, refocus(lf, slope))
-    return out.astype(np.float32)
-
-
-def _dilate(mask, radius):
-    """``mask`` dilated by a square of half-width ``radius`` (separable running maxima)."""
-    size = 2 * radius + 1
-    grown = ndimage.maximum_filter1d(mask.view(np.uint8), size, axis=0)
-    return ndimage.maximum_filter1d(grown, size, axis=1).astype(bool)
-
-
-def _gather_layer(views, has_weight, positions, warped, r, d, window, needed, n_ch, pad):
-    """The layer's colour ``(A, B, C)`` on a ``window`` of the canvas and its coverage ``(A, B, 1)``.
-
-    The canvas is the centre view padded by ``pad`` px. Coverage is 1
-    where a view sees the layer; only the ``needed`` pixels of the window
-    are gathered (the others get coverage 0).
-    """
-    rows, cols = window
-    colour = np.zeros(needed.shape + (n_ch,), np.float32)
-    count = np.zeros(needed.shape, np.int32)
-    with _KERNEL_LOCK:
-        _kernels().layer_colour(views, has_weight, positions, warped, r, d, rows.start - pad, cols.start - pad,
-                                np.ascontiguousarray(needed), colour, count)
-    return colour, (count > 0)[..., None].astype(np.float32)
-
-
-def _composite(layer, coverage, window, widths, colour, alpha):
-    """Blur a layer (premultiplied colour, coverage) by its defocus box; composite it under ``colour``/``alpha``."""
-    width_y, width_x = widths
-    rows, cols = window
-    reach_y, reach_x = int(width_y // 2) + 2, int(width_x // 2) + 2
-    out = _window([rows.start, rows.stop - 1], [cols.start, cols.stop - 1], reach_y, reach_x, colour.shape[:2])
-    padded = np.zeros((out[0].stop - out[0].start, out[1].stop - out[1].start, layer.shape[2] + 1), np.float32)
-    inner = (slice(rows.start - out[0].start, rows.stop - out[0].start),
-             slice(cols.start - out[1].start, cols.stop - out[1].start))
-    padded[inner + (slice(None, -1),)] = layer * coverage
-    padded[inner + (slice(-1, None),)] = coverage
-    blurred = _box_sum(padded, width_y, width_x) / np.float32(_box_area(width_y) * _box_area(width_x))
-    free = 1.0 - alpha[out]
-    colour[out] += free * blurred[..., :-1]
-    alpha[out] += free * blurred[..., -1:]
+    return render_dense_aperture(lf, slope, disparity, larger_first=larger_first, max_bins=max_layers).image

@@ -168,7 +168,6 @@ def _hci_grid(folder):
     if all(isinstance(n, float) and n >= 1 and n == int(n) for n in counts):
         return int(counts[0]), int(counts[1])
     return None
-    return paths
 
 
 def _hci_layout(folder, matches, grid):

@@ -16,7 +16,9 @@ evaluation at the sparse views' positions only (the midpoint rule of the
 same integral), so only the angular sampling differs: interpolation blur,
 sensor noise, clipping and demosaicing errors are not angular aliasing.
 Camera effects (:func:`napari_lfalias.synthetic.camera.capture`) are
-applied to the views the methods see, never to the reference.
+applied to the views the methods see, not to the reference, except the
+exposure: a camera with the same exposure records the reference scaled
+and clipped at 1.
 
 Real: HCI antinous (9x9 views) by the sub-grid protocol: a sparse sub-grid
 that spans the same aperture (rows/columns 1, 4, 7; or 0, 2, 4, 6, 8),
@@ -62,12 +64,21 @@ class Case:
 
 
 def _synthetic(name, split, scene, slopes, notes="", **camera):
-    """A case from a synthetic scene, optionally seen through a camera (``capture`` options)."""
+    """A case from a synthetic scene, optionally seen through a camera (``capture`` options).
+
+    With an ``exposure``, the reference is what a dense-aperture camera of
+    that exposure records: the scene's reference scaled, clipped at 1.
+    """
     lf = capture(scene.lightfield, **camera) if camera else scene.lightfield
     lf = lfa.LightField(lf.data, lf.positions, {"source": name}, weights=lf.weights)  # no ground truth in meta
-    return Case(name, split, lf, list(slopes), lambda s: scene.reference(s, interpolation="exact"),
+    exposure = np.float32(camera.get("exposure", 1.0))
+
+    def exposed(image):
+        return image if exposure == 1 else np.minimum(image * exposure, np.float32(1.0))
+
+    return Case(name, split, lf, list(slopes), lambda s: exposed(scene.reference(s, interpolation="exact")),
                 scene.disparity, notes,
-                comb=lambda s: scene.reference(s, samples_per_view=1, interpolation="exact"))
+                comb=lambda s: exposed(scene.reference(s, samples_per_view=1, interpolation="exact")))
 
 
 def synthetic_cases(size=256):

@@ -124,8 +124,29 @@ def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, o
 
 
 @njit(cache=True)
+def _bin_boxes(bins, weights, n_bins):
+    """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples."""
+    n_rows, n_cols = bins.shape
+    boxes = np.empty((n_bins, 4), np.int64)
+    boxes[:, 0] = n_rows
+    boxes[:, 1] = -1
+    boxes[:, 2] = n_cols
+    boxes[:, 3] = -1
+    for y in range(n_rows):
+        for x in range(n_cols):
+            k = bins[y, x]
+            if k < 0 or weights[y, x] <= 0.0:
+                continue
+            boxes[k, 0] = min(boxes[k, 0], y)
+            boxes[k, 1] = max(boxes[k, 1], y)
+            boxes[k, 2] = min(boxes[k, 2], x)
+            boxes[k, 3] = max(boxes[k, 3], x)
+    return boxes
+
+
+@njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
-                    trust):
+                    trust, covers, seen):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -135,21 +156,27 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     blurred edge) is the in-focus surface the other views see there,
     ``fill``, where ``has_fill``. Layers hold unit coverage; the view's
     cell at a pixel counts by the weight of the view's sample there.
+
+    ``covers (K, Y, X)`` and ``seen (Y, X)`` are scratch: each bin's
+    blurred coverage (within its reach), and the share of the cell the bins
+    composited so far leave free, brought up to ``occluders[o]`` as ``o``
+    advances (``occluders`` never decreases along ``order``).
     """
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
-    seen = np.ones((n_order + 1, n_rows, n_cols), np.float32)  # seen[o + 1]: through bins order[:o + 1]
+    boxes = _bin_boxes(bins, weights, taps.shape[0])
+    reach = np.full((n_order, 4), -1, np.int64)  # each bin's blurred extent y0, y1, x0, x1 (exclusive ends)
+    seen[:] = 1.0
+    lagged = -1  # seen holds the bins order[:lagged + 1]
     for o in range(n_order):
         k = order[o]
-        seen[o + 1] = seen[o]
-        y_lo, y_hi, x_lo, x_hi = n_rows, -1, n_cols, -1
-        for y in range(n_rows):
-            for x in range(n_cols):
-                if bins[y, x] == k and weights[y, x] > 0.0:
-                    y_lo = min(y_lo, y)
-                    y_hi = max(y_hi, y)
-                    x_lo = min(x_lo, x)
-                    x_hi = max(x_hi, x)
+        while lagged < occluders[o]:
+            lagged += 1
+            y0, y1, x0, x1 = reach[lagged, 0], reach[lagged, 1], reach[lagged, 2], reach[lagged, 3]
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    seen[y, x] *= 1.0 - covers[lagged, y, x]
+        y_lo, y_hi, x_lo, x_hi = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         if y_hi < 0:
             continue
         ny, fy, nx, fx = taps[k, 0], taps[k, 1], taps[k, 2], taps[k, 3]
@@ -158,6 +185,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         reach_x = int(nx) + 1 if blur else 0
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
         x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
+        reach[o, 0], reach[o, 1], reach[o, 2], reach[o, 3] = y0, y1, x0, x1
         layer = np.zeros((y1 - y0, x1 - x0, n_ch + 2), np.float32)
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
@@ -171,27 +199,31 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
             box_image(layer, int(ny), fy, int(nx), fx, summed)
             area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
             layer = summed / area
-        through = seen[occluders[o] + 1]
         for y in range(y0, y1):
             for x in range(x0, x1):
                 cell = layer[y - y0, x - x0]
-                cover = cell[n_ch]
+                cover = min(cell[n_ch], 1.0)
+                covers[o, y, x] = cover
                 if cover <= 0.0:
                     continue
-                seen[o + 1, y, x] *= 1.0 - min(cover, 1.0)
-                t = through[y, x] * weights[y, x]  # the view's cell counts by its sample's weight
+                t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]  # the cell counts by its weight
                 if t <= 0.0:
                     continue
                 for c in range(n_ch):
                     num[y, x, c] += t * cell[c]
-                den[y, x] += t * cover
+                den[y, x] += t * cell[n_ch]
                 if blur:
-                    blurred[y, x] += t * cover
+                    blurred[y, x] += t * cell[n_ch]
                 trust[y, x] += t * cell[n_ch + 1]
-    last = seen[n_order]
+    while lagged < n_order - 1:  # what every bin leaves free
+        lagged += 1
+        y0, y1, x0, x1 = reach[lagged, 0], reach[lagged, 1], reach[lagged, 2], reach[lagged, 3]
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                seen[y, x] *= 1.0 - covers[lagged, y, x]
     for y in range(n_rows):
         for x in range(n_cols):
-            t = last[y, x] * weights[y, x]
+            t = seen[y, x] * weights[y, x]
             if t > 0.0 and has_fill[y, x]:
                 for c in range(n_ch):
                     num[y, x, c] += t * fill[y, x, c]
@@ -211,8 +243,10 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
     position in ``order``, the last position whose bins hide it (-1: none); ``fill (Y, X, C)`` and
     ``has_fill (Y, X)``: the in-focus surface behind occluders' edges (see :func:`_composite_view`).
     """
-    n = values.shape[0]
+    n, n_rows, n_cols = bins.shape
     for chunk in prange(n_chunks):
+        covers = np.empty((order.shape[0], n_rows, n_cols), np.float32)
+        seen = np.empty((n_rows, n_cols), np.float32)
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
-                            num[chunk], den[chunk], blurred[chunk], trust[chunk])
+                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen)

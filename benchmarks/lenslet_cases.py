@@ -75,7 +75,6 @@ from __future__ import annotations
 
 import math
 import tempfile
-from pathlib import Path
 
 import numpy as np
 

@@ -158,4 +158,7 @@ def hci_cases():
 
 
 def all_cases(size=256):
-    return synthetic_cases(size) + hci_cases()
+    """Every case: synthetic, lenslet captures through the decoder (:mod:`lenslet_cases`), real."""
+    from lenslet_cases import lenslet_cases  # it imports Case from here
+
+    return synthetic_cases(size) + lenslet_cases(size) + hci_cases()

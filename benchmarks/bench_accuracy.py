@@ -113,10 +113,12 @@ def _save_images(folder, case, slope, naive, ours, reference, truth, mask, dispa
     lo, hi = np.percentile(disparity, [1, 99])
     masks = np.stack([truth & ~mask, truth & mask, mask & ~truth], axis=-1).astype(np.float32)  # red missed, green found, blue extra
     top = np.concatenate([naive, ours, reference], axis=1)
+    top = np.repeat(top, 3 // top.shape[-1], axis=-1)  # grey (lenslet) cases as RGB
     bottom = np.concatenate([masks, grey((disparity - lo) / max(hi - lo, 1e-6)),
                              grey(np.abs(ours - reference).max(-1) * 10)], axis=1)
     image = np.clip(np.concatenate([top, bottom], axis=0), 0, 1)
-    name = "".join(c if c.isalnum() else "_" for c in f"{case.name}_{slope:+.2f}")[:80]
+    signed = f"{slope:+.2f}".replace("+", "p").replace("-", "m")  # +4 and -4 get files of their own
+    name = "".join(c if c.isalnum() else "_" for c in f"{case.name}_{signed}")[:80]
     path = folder / f"{name}.png"
     iio.imwrite(path, (image * 255).round().astype(np.uint8))
     return path
@@ -127,12 +129,13 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     parser.add_argument("--split", default=None, help="only this split (tune, holdout, real)")
+    parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None else args.out.parent / "accuracy"
     sections = []
     summary = {}
     for case in all_cases(args.size):
-        if args.split and case.split != args.split:
+        if args.split and case.split != args.split or args.cases and args.cases.lower() not in case.name.lower():
             continue
         lines = [f"### {case.name} ({case.split})", "", case.notes, ""]
         for slope in case.slopes:

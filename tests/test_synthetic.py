@@ -167,3 +167,60 @@ def test_bad_reference_and_view_arguments(small_room):
         small_room.render_view(1.0)
     with pytest.raises(ParameterError, match="wall_colour"):
         textureless_plane(wall_colour=(2, 0, 0))
+
+
+# -- refocus over any aperture ------------------------------------------------------------------------
+
+
+def _cells(n_views, m):
+    """Aperture positions of ``m`` samples per view cell and axis (the midpoint rule of ``reference``)."""
+    centres = np.arange(n_views) - (n_views - 1) / 2
+    return (centres[:, None] + (np.arange(m) + 0.5) / m - 0.5).ravel()
+
+
+def test_a_uniform_square_aperture_is_the_reference(small_room):
+    q = _cells(5, 6)
+    for slope in (-4.0, 1.3):
+        image = small_room.aperture_refocus(slope, q, q, np.ones((q.size, q.size)))
+        np.testing.assert_allclose(image, small_room.reference(slope, samples_per_view=6), atol=2e-5)
+
+
+def test_origin_and_shape_select_a_window_of_the_scene(small_room):
+    q = _cells(5, 4)
+    slope = 2.0
+    full = small_room.reference(slope, samples_per_view=4)
+    window = small_room.aperture_refocus(slope, q, q, np.ones((q.size, q.size)), origin=(5.0, 7.0), shape=(30, 40))
+    assert window.shape == (30, 40, 3)
+    inner = (slice(6, -6), slice(6, -6))  # beyond the border validity of |slope| * 2.5 px
+    np.testing.assert_allclose(window[inner], full[5:35, 7:47][inner], atol=2e-5)
+
+
+def test_a_disc_aperture_keeps_the_plane_in_focus_sharp_and_blurs_it_elsewhere():
+    scene = textured_plane(n_views=5, size=64, seed=3, disparity=1.5)
+    q = _cells(5, 8)
+    disc = (np.hypot(q[:, None], q[None, :]) <= 2.5).astype(float)
+    texture = scene.render_view((0.0, 0.0))[10:50, 12:52]
+    sharp = scene.aperture_refocus(1.5, q, q, disc, origin=(10.0, 12.0), shape=(40, 40))
+    np.testing.assert_allclose(sharp, texture, atol=1e-4)
+    # a sub-pixel origin moves the scene exactly: the view at q = (-1/3, 0) sees it 0.5 px further down
+    moved = scene.aperture_refocus(1.5, q, q, disc, origin=(10.5, 12.0), shape=(40, 40))
+    np.testing.assert_allclose(moved, scene.render_view((-1 / 3, 0.0))[10:50, 12:52], atol=1e-4)
+    assert np.abs(moved - sharp).max() > 0.05
+    blurred = scene.aperture_refocus(-0.5, q, q, disc, origin=(10.0, 12.0), shape=(40, 40))
+    square = scene.aperture_refocus(-0.5, q, q, np.ones_like(disc), origin=(10.0, 12.0), shape=(40, 40))
+
+    def detail(image):
+        return np.abs(np.diff(image, axis=1)).mean()
+
+    assert detail(blurred) < 0.5 * detail(texture)
+    assert np.abs(blurred - square)[10:30, 10:30].max() > 0.01  # the aperture's shape is the blur's shape
+
+
+def test_aperture_refocus_rejects_bad_input(small_room):
+    q = np.zeros(3)
+    with pytest.raises(ParameterError, match=r"transmission must be non-negative, shape \(3, 3\)"):
+        small_room.aperture_refocus(0.0, q, q, np.ones((3, 2)))
+    with pytest.raises(ParameterError, match="transmission must be non-negative"):
+        small_room.aperture_refocus(0.0, q, q, -np.ones((3, 3)))
+    with pytest.raises(ParameterError, match="reach outside the scene"):
+        small_room.aperture_refocus(0.0, q, q, np.ones((3, 3)), origin=(40.0, 0.0), shape=(30, 30))

@@ -44,7 +44,7 @@ Clipped light
     The clipping level is the file's largest code value (1 after the
     division by 255 or 65535) where samples reach it, else the data's
     maximum when it is a plateau (at least 16 samples and one in 100 000
-    exactly on it, and more than in the 1 % just below it: a sensor clips
+    exactly on it, and more than in the 2 % just below it: a sensor clips
     to one value, a natural histogram thins out towards its maximum).
     As in the lenslet decoder, every value at or above it after the
     vignetting correction is set to it (a clipped sky is "at least this
@@ -100,8 +100,8 @@ _SUPPORT = 0.25
 _SIGNIFICANCE = 4.0
 #: A clipping plateau holds at least this many samples, and this fraction of them.
 _PLATEAU = (16, 1e-5)
-#: "Just below the maximum": this fraction of it.
-_NEAR_TOP = 0.99
+#: "Just below the maximum": from this fraction of it.
+_NEAR_TOP = 0.98
 #: Views blurred per OpenCV call (as the channels of one image: OpenCV 5 takes at most 128).
 _CV_CHANNELS = 128
 
@@ -213,7 +213,7 @@ def clip_level(views, summaries):
             at_top = int(np.count_nonzero(high == top))
             n_top, n_near = n_top + at_top, n_near + high.size - at_top
     n_samples = len(examined) * views[0].size
-    return top if n_top >= max(_PLATEAU[0], _PLATEAU[1] * n_samples) and n_top >= n_near else None
+    return top if n_top >= max(_PLATEAU[0], _PLATEAU[1] * n_samples) and n_top > n_near else None
 
 
 # -- vignetting ----------------------------------------------------------------

@@ -18,8 +18,8 @@ import numpy as np
 from .. import _budget, _validate
 from ..errors import DecodeError, LightFieldWarning, ParameterError
 from ..lightfield import LightField
-from .hci import hci_metadata
 from .artefacts import correct_artefacts, summarise_view
+from .hci import hci_metadata
 from .images import image_header, read_image
 from .view_names import find_views
 
@@ -202,9 +202,9 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
         Look for what a real camera leaves in exported views
         (:mod:`~napari_lfalias.decoders.artefacts`): black borders get
         weight 0; clearly vignetted views (a plenoptic camera's dark
-        corner views) are divided by their fall-off relative to the other
-        views, which becomes their weight; clipped light is set to one
-        level in every view at half weight. ``None`` (default): when the
+        corner views) are divided by their fall-off relative to the
+        brightest view, which becomes their weight; clipped light is set
+        to one level in every view at half weight. ``None`` (default): when the
         views are read now (not with ``lazy=True``); ``False``: the views
         exactly as the files hold them.
 

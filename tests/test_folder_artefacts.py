@@ -22,12 +22,12 @@ CENTRE = N_VIEWS // 2
 
 
 def _write_folder(folder, data, top=255):
-    """Every view as a PNG of ``round(value * top)`` (16-bit when ``top`` > 255)."""
+    """Every view as a PNG of ``round(value * top)`` (16-bit when ``top`` > 255; grey for one channel)."""
     folder.mkdir()
     dtype = np.uint8 if top <= 255 else np.uint16
     for u, v in np.ndindex(data.shape[:2]):
         image = np.round(np.clip(data[u, v], 0, 1) * top).astype(dtype)
-        cv2.imwrite(str(folder / f"view_{u}_{v}.png"), image[..., ::-1])
+        cv2.imwrite(str(folder / f"view_{u}_{v}.png"), image[..., ::-1] if image.shape[-1] == 3 else image[..., 0])
     return folder
 
 
@@ -123,6 +123,18 @@ def test_the_default_detector_is_not_raised_by_vignetting(vignetted):
                for name, x in (("ideal", target), ("weights", lfa.load(folder)),
                                ("files", lfa.load(folder, artefacts=False)))}
     assert flagged["weights"] <= flagged["ideal"] + 0.005 and flagged["files"] > flagged["weights"], flagged
+
+
+def test_grey_16_bit_views_are_corrected_too(tmp_path):
+    ideal, recorded, target = _camera("noise", exposure=1.0)
+    grey = _luminance(recorded.data)[..., None]
+    folder = _write_folder(tmp_path / "views", grey, 65535)
+    lf = lfa.load(folder)
+    assert lf.shape[-1] == 1 and [0, 0] in lf.meta["artefacts"]["vignetted_views"]
+    reference = lfa.refocus(lfa.LightField(_luminance(target)[..., None], ideal.positions), SLOPE)[..., 0]
+    corners = _corners(reference.shape)
+    error = float(np.mean(lfa.refocus(lf, SLOPE)[..., 0][corners] / reference[corners]) - 1)
+    assert abs(error) < 0.1, error
 
 
 def test_missing_views_are_left_out_of_the_estimate(vignetted, tmp_path):

@@ -44,8 +44,9 @@ Clipped light
     The clipping level is the file's largest code value (1 after the
     division by 255 or 65535) where samples reach it, else the data's
     maximum when it is a plateau (at least 16 samples and one in 100 000
-    exactly on it, and more than in the 2 % just below it: a sensor clips
-    to one value, a natural histogram thins out towards its maximum).
+    exactly on it, but not all of them, and more than in the 2 % just below
+    it: a sensor clips to one value, a natural histogram thins out towards
+    its maximum).
     As in the lenslet decoder, every value at or above it after the
     vignetting correction is set to it (a clipped sky is "at least this
     bright" in every view, so the views agree) and the sample's weight is
@@ -213,7 +214,8 @@ def clip_level(views, summaries):
             at_top = int(np.count_nonzero(high == top))
             n_top, n_near = n_top + at_top, n_near + high.size - at_top
     n_samples = len(examined) * views[0].size
-    return top if n_top >= max(_PLATEAU[0], _PLATEAU[1] * n_samples) and n_top > n_near else None
+    plateau = max(_PLATEAU[0], _PLATEAU[1] * n_samples) <= n_top < n_samples  # all at one value: nothing clipped
+    return top if plateau and n_top > n_near else None
 
 
 # -- vignetting ----------------------------------------------------------------

@@ -129,10 +129,30 @@ class ViewSummary:
     coverage: np.ndarray | None
 
 
-def _reduced_size(height, width):
-    """``(w, h)`` of the reduced view (OpenCV order): :data:`_REDUCED` on the long side, never enlarged."""
-    scale = min(1.0, _REDUCED / max(height, width))
-    return max(1, round(width * scale)), max(1, round(height * scale))
+def _blocks(height, width):
+    """Block ``(rows, columns)``: whole pixels, about :data:`_REDUCED` blocks on the long side.
+
+    The reduced view covers ``(Y // rows) * rows`` rows and likewise columns
+    (the last few pixels are left out: an integer factor keeps OpenCV's
+    area reduction on its fast path).
+    """
+    step = max(1, -(-max(height, width) // _REDUCED))
+    return min(step, height), min(step, width)
+
+
+def _reduce(image, blocks):
+    """Block means of ``image (Y, X[, C])`` (OpenCV area reduction by whole blocks)."""
+    rows, cols = blocks
+    n_rows, n_cols = image.shape[0] // rows, image.shape[1] // cols
+    return cv2.resize(image[:n_rows * rows, :n_cols * cols], (n_cols, n_rows), interpolation=cv2.INTER_AREA)
+
+
+def _expand(small, blocks, shape):
+    """Bilinear enlargement of block values to ``shape (Y, X)``, the left-out edge repeating the last block."""
+    rows, cols = blocks
+    full = cv2.resize(small.astype(np.float32), (small.shape[1] * cols, small.shape[0] * rows),
+                      interpolation=cv2.INTER_LINEAR)
+    return np.pad(full, ((0, shape[0] - full.shape[0]), (0, shape[1] - full.shape[1])), mode="edge")
 
 
 def black_border(view):
@@ -161,28 +181,43 @@ def _luminance(image):
     return image @ REC709 if image.shape[2] == 3 else image[..., 0]
 
 
-def summarise_view(view):
-    """The :class:`ViewSummary` of one view ``(Y, X, C)`` float32, or ``None`` if it holds NaN or Inf.
+def _largest(native):
+    """The largest sample of a view as decoded, in [0, 1] units; NaN if a float view holds NaN."""
+    top = float(np.max(native))  # on 8 bits a small fraction of the float32 view's time; NaN propagates
+    return top / np.iinfo(native.dtype).max if np.issubdtype(native.dtype, np.integer) else top
+
+
+def summarise_view(view, native=None):
+    """The :class:`ViewSummary` of one view, or ``None`` if it holds NaN or Inf.
+
+    Parameters
+    ----------
+    view : ndarray, shape (Y, X, C), float32
+        The view in [0, 1].
+    native : ndarray, optional
+        The same view as decoded (its own dtype), where its largest value
+        is found faster.
 
     Examples
     --------
     >>> summary = summarise_view(np.full((128, 96, 3), 0.25, np.float32))
     >>> summary.small.shape, round(float(summary.small.mean()), 3), summary.border is None
-    ((48, 36), 0.25, True)
+    ((42, 32), 0.25, True)
     """
-    top = float(view.max())
-    if not np.isfinite(top):
-        return None  # NaN or Inf: the LightField refuses or masks them
+    height, width = view.shape[:2]
+    top = _largest(view if native is None else native)
     border = black_border(view)
-    size = _reduced_size(*view.shape[:2])
+    blocks = _blocks(height, width)
     if border is None:
-        small, coverage = _luminance(cv2.resize(view, size, interpolation=cv2.INTER_AREA)), None
+        small, coverage = _luminance(_reduce(view, blocks)), None
     else:
         keep = (~border).astype(np.float32)
-        coverage = cv2.resize(keep, size, interpolation=cv2.INTER_AREA)
-        kept = cv2.resize(view * keep[..., None], size, interpolation=cv2.INTER_AREA)
-        small = _luminance(kept) / np.maximum(coverage, np.float32(1e-6))
-    return ViewSummary(top, border, small.astype(np.float32), coverage)
+        coverage = _reduce(keep, blocks)
+        small = _luminance(_reduce(view * keep[..., None], blocks)) / np.maximum(coverage, np.float32(1e-6))
+    left_out = (view[small.shape[0] * blocks[0]:], view[:, small.shape[1] * blocks[1]:])
+    if not (np.isfinite(top) and np.isfinite(small).all() and all(np.isfinite(part.sum()) for part in left_out)):
+        return None  # NaN or Inf: the LightField refuses or masks them
+    return ViewSummary(float(top), border, small.astype(np.float32), coverage)
 
 
 # -- clipping ------------------------------------------------------------------
@@ -334,14 +369,14 @@ def _usable(summaries, n_blocks_shape, clipped_share):
 def _clipped_share(data, level, examined):
     """Per view, the share of each block clipped at ``level`` ``(n, h, w)``, and the clipped masks."""
     flat = data.reshape((-1,) + data.shape[2:])
-    size = _reduced_size(*data.shape[2:4])
-    share = np.zeros((len(flat), size[1], size[0]), np.float32)
+    blocks = _blocks(*data.shape[2:4])
+    share = np.zeros((len(flat), data.shape[2] // blocks[0], data.shape[3] // blocks[1]), np.float32)
     masks = [None] * len(flat)
     for i in examined:
         mask = (flat[i] >= np.float32(level)).any(axis=-1)
         if mask.any():
             masks[i] = mask
-            share[i] = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+            share[i] = _reduce(mask.astype(np.float32), blocks)
     return share, masks
 
 
@@ -476,7 +511,7 @@ def _divide_out(flat, falloff, corrected, weights_of):
     """Divide each corrected view by its fall-off (blocks, upsampled) and multiply its weights by it."""
     height, width = flat.shape[1:3]
     for i, small in zip(corrected, falloff):
-        full = cv2.resize(small.astype(np.float32), (width, height), interpolation=cv2.INTER_LINEAR)
+        full = _expand(small, _blocks(height, width), (height, width))
         flat[i] /= np.maximum(full, np.float32(MIN_WEIGHT))[..., None]
         weight = np.where(full >= MIN_WEIGHT, np.minimum(full, 1), 0).astype(np.float32)
         weights_of(i)[...] *= weight

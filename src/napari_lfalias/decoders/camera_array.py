@@ -20,7 +20,7 @@ from ..errors import DecodeError, LightFieldWarning, ParameterError
 from ..lightfield import LightField
 from .artefacts import correct_artefacts, summarise_view
 from .hci import hci_metadata
-from .images import image_header, read_image
+from .images import decode_image, image_header, to_unit_float
 from .view_names import find_views
 
 __all__ = ["load_camera_array"]
@@ -47,10 +47,12 @@ def _check_view(path, shape, first_path, first_shape):
     )
 
 
-def _read_view(path, first_path, first_shape):
-    image = read_image(path)
-    _check_view(path, image.shape, first_path, first_shape)
-    return image
+def _read_view(path, first_path, first_shape, out=None, summarise=None):
+    """The view as float32 in [0, 1] (into ``out`` if given), and ``summarise(view, native)`` if given."""
+    native = decode_image(path)
+    _check_view(path, native.shape, first_path, first_shape)
+    image = to_unit_float(native, out)
+    return image, (None if summarise is None else summarise(image, native))
 
 
 def _first_present(paths):
@@ -68,35 +70,25 @@ def _check_size(paths, grid_shape, first_shape):
 
 
 def _read_eager(paths, grid_shape, progress, summarise=None):
-    """The views ``(U, V, Y, X, C)``, and ``summarise(view)`` of each (``None`` for a missing one) if given."""
+    """The views ``(U, V, Y, X, C)``, and ``summarise(view, native)`` of each (``None`` for a missing one) if given."""
     first_path = _first_present(paths)
     first_shape = image_header(first_path)
     _check_size(paths, grid_shape, first_shape)
-    first = read_image(first_path)
-    _check_view(first_path, first.shape, first_path, first_shape)
-    data = np.zeros(tuple(grid_shape) + first.shape, np.float32)
-    flat = data.reshape((-1,) + first.shape)
+    data = np.zeros(tuple(grid_shape) + tuple(first_shape), np.float32)
+    flat = data.reshape((-1,) + tuple(first_shape))
     present = [i for i, path in enumerate(paths) if path is not None]
     summaries = [None] * len(paths)
-    flat[present[0]] = first
-    if summarise is not None:
-        summaries[present[0]] = summarise(flat[present[0]])
-    total = len(present)
-    if progress is not None:
-        progress(1, total)
 
-    def read_into(i):
-        flat[i] = _read_view(paths[i], first_path, first.shape)
-        if summarise is not None:  # in the reader thread, while the view is in the cache
-            summaries[i] = summarise(flat[i])
+    def read_into(i):  # in a reader thread: the view is summarised while it is in the cache
+        _, summaries[i] = _read_view(paths[i], first_path, first_shape, flat[i], summarise)
 
     with ThreadPoolExecutor(_READ_THREADS) as pool:
-        futures = [pool.submit(read_into, i) for i in present[1:]]
+        futures = [pool.submit(read_into, i) for i in present]
         try:
-            for done, future in enumerate(futures, start=2):
+            for done, future in enumerate(futures, start=1):
                 future.result()  # re-raises the first failure, in view order
                 if progress is not None:
-                    progress(done, total)
+                    progress(done, len(present))
         except BaseException:
             for future in futures:
                 future.cancel()
@@ -125,7 +117,7 @@ def _read_lazy(paths, grid_shape, progress):
         path = paths[u * n_cols + v]
         if path is None:  # a view missing from the folder: weight 0
             return np.zeros((1, 1) + tuple(first_shape), np.float32)
-        return _read_view(path, first_path, first_shape)[None, None]
+        return _read_view(path, first_path, first_shape)[0][None, None]
 
     stamps = [(str(p), p.stat().st_mtime_ns, p.stat().st_size) if p is not None else None for p in paths]
     chunks = tuple((1,) * n for n in grid_shape) + tuple((n,) for n in first_shape)

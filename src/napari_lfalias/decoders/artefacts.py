@@ -366,11 +366,11 @@ def _usable(summaries, n_blocks_shape, clipped_share):
 
 # -- the whole correction ------------------------------------------------------
 
-def _clipped_share(data, level, examined):
-    """Per view, the share of each block clipped at ``level`` ``(n, h, w)``, and the clipped masks."""
-    flat = data.reshape((-1,) + data.shape[2:])
-    blocks = _blocks(*data.shape[2:4])
-    share = np.zeros((len(flat), data.shape[2] // blocks[0], data.shape[3] // blocks[1]), np.float32)
+def _clipped_share(flat, level, examined):
+    """Per view ``(n, Y, X, C)``, the share of each block clipped at ``level`` ``(n, h, w)``, and the clipped masks."""
+    height, width = flat.shape[1:3]
+    blocks = _blocks(height, width)
+    share = np.zeros((len(flat), height // blocks[0], width // blocks[1]), np.float32)
     masks = [None] * len(flat)
     for i in examined:
         mask = (flat[i] >= np.float32(level)).any(axis=-1)
@@ -380,13 +380,20 @@ def _clipped_share(data, level, examined):
     return share, masks
 
 
-def _allocate_weights(weights, shape, source):
-    if weights is not None:
-        return weights
-    n_bytes = int(np.prod(shape)) * 4
-    _budget.check(n_bytes, f"{source}: the sample weights of its black borders, vignetting or clipped light",
-                  DecodeError)
-    return np.ones(shape, np.float32)
+class _Weights:
+    """The light field's sample weights, allocated (within the memory budget) at the first artefact found."""
+
+    def __init__(self, weights, shape, source):
+        self.array, self._shape, self._source = weights, shape, source
+
+    def of(self, i):
+        """The weights ``(Y, X)`` of view ``i`` (row-major), to change in place."""
+        if self.array is None:
+            _budget.check(int(np.prod(self._shape)) * 4,
+                          f"{self._source}: the sample weights of its black borders, vignetting or clipped light",
+                          DecodeError)
+            self.array = np.ones(self._shape, np.float32)
+        return self.array.reshape((-1,) + self._shape[2:])[i]
 
 
 def correct_artefacts(data, summaries, weights=None, *, source="the folder"):
@@ -411,10 +418,9 @@ def correct_artefacts(data, summaries, weights=None, *, source="the folder"):
     weights : ndarray, shape (U, V, Y, X), float32, or None
         ``None`` when nothing was found and no weights were given.
     report : dict
-        Empty when nothing was found; else ``black_border_samples``,
-        ``vignetted_views`` (``[u, v]`` of the corrected views),
-        ``lowest_falloff``, ``clip_level`` (None if not clipped) and
-        ``clipped_samples``.
+        Empty when nothing was found; else what was: ``black_border_samples``;
+        ``vignetted_views`` (``[u, v]`` of the corrected views) and
+        ``lowest_falloff``; ``clip_level`` and ``clipped_samples``.
 
     Raises
     ------
@@ -434,60 +440,66 @@ def correct_artefacts(data, summaries, weights=None, *, source="the folder"):
     >>> round(float(weights[0, 0].mean()), 2), float(weights[1, 1].min())
     (0.4, 1.0)
     """
-    n_rows, n_cols, height, width = data.shape[:4]
     flat = data.reshape((-1,) + data.shape[2:])
     examined = [i for i, s in enumerate(summaries) if s is not None]
-    report = {}
     if not examined:
-        return weights, report
-    flat_weights = None if weights is None else weights.reshape((-1, height, width))
-
-    def weights_of(i):
-        nonlocal weights, flat_weights
-        if flat_weights is None:
-            weights = _allocate_weights(None, (n_rows, n_cols, height, width), source)
-            flat_weights = weights.reshape((-1, height, width))
-        return flat_weights[i]
-
-    borders = [i for i in examined if summaries[i].border is not None]
-    for i in borders:
-        weights_of(i)[summaries[i].border] = 0
-    if borders:
-        report["black_border_samples"] = int(sum(np.count_nonzero(summaries[i].border) for i in borders))
-
+        return weights, {}
+    weights = _Weights(weights, data.shape[:4], source)
+    report = _black_borders(summaries, examined, weights)
     level = clip_level(flat, summaries)
-    share = masks = None
+    share, masks = _clipped_share(flat, level, examined) if level is not None else (None, None)
+    corrected, found = _vignetting(flat, summaries, examined, share, weights)
+    if corrected:
+        report["vignetted_views"] = [[i // data.shape[1], i % data.shape[1]] for i in corrected]
+    report.update(found)
     if level is not None:
-        share, masks = _clipped_share(data, level, examined)
+        report.update(_ceiling(flat, level, masks, corrected, examined, weights))
+    return weights.array, report
 
-    corrected = []
-    if len(examined) >= 2 and min(height, width) >= _MIN_SIDE:
-        small = np.stack([s.small if s is not None else np.zeros_like(summaries[examined[0]].small)
-                          for s in summaries])
-        estimate = relative_falloff(small, _usable(summaries, small.shape[1:], share))
-        if estimate is not None:
-            falloff, upper = estimate
-            surely_below = _lowest(upper[examined])
-            if surely_below.min() < DETECTED:
-                corrected = [i for i, low in zip(examined, surely_below) if low < CORRECTED]
-                filled = _fill_unknown(falloff)
-                if level is not None:
-                    filled = _under_clipped_light(filled, small, share)
-                _divide_out(flat, filled[corrected], corrected, weights_of)
-                report["vignetted_views"] = [[i // n_cols, i % n_cols] for i in corrected]
-                report["lowest_falloff"] = round(float(_lowest(falloff[corrected]).min()), 3)
 
-    if level is not None:
-        for i in corrected:  # a corrected view may pass the level: the same ceiling in every view
-            np.minimum(flat[i], np.float32(level), out=flat[i])
-            masks[i] = (flat[i] >= np.float32(level)).any(axis=-1)
-        clipped = [i for i in examined if masks[i] is not None and masks[i].any()]
-        for i in clipped:
-            weights_of(i)[masks[i]] *= np.float32(CLIPPED_WEIGHT)
-        if clipped:
-            report["clip_level"] = float(level)
-            report["clipped_samples"] = int(sum(np.count_nonzero(masks[i]) for i in clipped))
-    return weights, report
+def _black_borders(summaries, examined, weights):
+    """Weight 0 on every view's black border; the report."""
+    count = 0
+    for i in examined:
+        if summaries[i].border is not None:
+            weights.of(i)[summaries[i].border] = 0
+            count += int(np.count_nonzero(summaries[i].border))
+    return {"black_border_samples": count} if count else {}
+
+
+def _vignetting(flat, summaries, examined, share, weights):
+    """Divide the clearly vignetted views by their fall-off (module notes): their indices, and the report."""
+    height, width = flat.shape[1:3]
+    if len(examined) < 2 or min(height, width) < _MIN_SIDE:
+        return [], {}
+    blank = np.zeros_like(summaries[examined[0]].small)
+    small = np.stack([blank if s is None else s.small for s in summaries])
+    estimate = relative_falloff(small, _usable(summaries, small.shape[1:], share))
+    if estimate is None:
+        return [], {}
+    falloff, upper = estimate
+    surely_below = _lowest(upper[examined])
+    if surely_below.min() >= DETECTED:
+        return [], {}
+    corrected = [i for i, low in zip(examined, surely_below) if low < CORRECTED]
+    filled = _fill_unknown(falloff)
+    if share is not None:
+        filled = _under_clipped_light(filled, small, share)
+    _divide_out(flat, filled[corrected], corrected, weights)
+    return corrected, {"lowest_falloff": round(float(_lowest(falloff[corrected]).min()), 3)}
+
+
+def _ceiling(flat, level, masks, corrected, examined, weights):
+    """Clipped light at one level in every view, at :data:`CLIPPED_WEIGHT`; the report."""
+    for i in corrected:  # a corrected view may pass the level
+        np.minimum(flat[i], np.float32(level), out=flat[i])
+        masks[i] = (flat[i] >= np.float32(level)).any(axis=-1)
+    count = 0
+    for i in examined:
+        if masks[i] is not None and masks[i].any():
+            weights.of(i)[masks[i]] *= np.float32(CLIPPED_WEIGHT)
+            count += int(np.count_nonzero(masks[i]))
+    return {"clip_level": float(level), "clipped_samples": count} if count else {}
 
 
 def _under_clipped_light(falloff, small, share):
@@ -507,11 +519,10 @@ def _under_clipped_light(falloff, small, share):
     return np.where(clipped[None] & (bound < falloff), bound, falloff)
 
 
-def _divide_out(flat, falloff, corrected, weights_of):
-    """Divide each corrected view by its fall-off (blocks, upsampled) and multiply its weights by it."""
+def _divide_out(flat, falloff, corrected, weights):
+    """Divide each corrected view by its fall-off (blocks, enlarged) and multiply its weights by it."""
     height, width = flat.shape[1:3]
     for i, small in zip(corrected, falloff):
         full = _expand(small, _blocks(height, width), (height, width))
         flat[i] /= np.maximum(full, np.float32(MIN_WEIGHT))[..., None]
-        weight = np.where(full >= MIN_WEIGHT, np.minimum(full, 1), 0).astype(np.float32)
-        weights_of(i)[...] *= weight
+        weights.of(i)[...] *= np.where(full >= MIN_WEIGHT, np.minimum(full, 1), 0).astype(np.float32)

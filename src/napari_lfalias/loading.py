@@ -42,14 +42,16 @@ def load(path, **options):
         - a folder of views (HCI benchmark ``input_CamNNN.png``, Stanford
           ``out_RR_CC_y_x.png``, names with row/column indices, or a plain
           sorted list with ``grid=(U, V)``; views missing from the grid get
-          weight 0): see
+          weight 0; black borders, clearly vignetted views and clipped
+          light get the weights a calibrated camera would give them,
+          ``artefacts=False`` keeps the files' values): see
           :func:`napari_lfalias.decoders.camera_array.load_camera_array`;
         - a lenslet raw image (TIFF, PNG, camera raw, DNG) with
           ``white=...``, or a Lytro LFR/LFP/RAW file: see
           :func:`napari_lfalias.decoders.lenslet.load_lenslet`.
     **options
-        Passed to the reader (``grid``, ``lazy``, ``nonfinite``, ``white``,
-        ``dark``, ...).
+        Passed to the reader (``grid``, ``lazy``, ``nonfinite``,
+        ``artefacts``, ``white``, ``dark``, ...).
 
     Returns
     -------

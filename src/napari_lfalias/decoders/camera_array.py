@@ -18,15 +18,16 @@ import numpy as np
 from .. import _budget, _validate
 from ..errors import DecodeError, LightFieldWarning, ParameterError
 from ..lightfield import LightField
+from .artefacts import correct_artefacts, summarise_view
 from .hci import hci_metadata
-from .images import image_header, read_image
+from .images import decode_image, image_header, to_unit_float
 from .view_names import find_views
 
 __all__ = ["load_camera_array"]
 
 #: Reader threads: OpenCV and tifffile decode with the GIL released.
 _READ_THREADS = 2
-_ACCEPTED = ("grid", "lazy", "progress", "nonfinite")
+_ACCEPTED = ("grid", "lazy", "progress", "nonfinite", "artefacts")
 
 
 def _describe(shape):
@@ -46,10 +47,12 @@ def _check_view(path, shape, first_path, first_shape):
     )
 
 
-def _read_view(path, first_path, first_shape):
-    image = read_image(path)
-    _check_view(path, image.shape, first_path, first_shape)
-    return image
+def _read_view(path, first_path, first_shape, out=None, summarise=None):
+    """The view as float32 in [0, 1] (into ``out`` if given), and ``summarise(view, native)`` if given."""
+    native = decode_image(path)
+    _check_view(path, native.shape, first_path, first_shape)
+    image = to_unit_float(native, out)
+    return image, (None if summarise is None else summarise(image, native))
 
 
 def _first_present(paths):
@@ -66,35 +69,31 @@ def _check_size(paths, grid_shape, first_shape):
                            "float32 (the size its header gives)", DecodeError)
 
 
-def _read_eager(paths, grid_shape, progress):
+def _read_eager(paths, grid_shape, progress, summarise=None):
+    """The views ``(U, V, Y, X, C)``, and ``summarise(view, native)`` of each (``None`` for a missing one) if given."""
     first_path = _first_present(paths)
     first_shape = image_header(first_path)
     _check_size(paths, grid_shape, first_shape)
-    first = read_image(first_path)
-    _check_view(first_path, first.shape, first_path, first_shape)
-    data = np.zeros(tuple(grid_shape) + first.shape, np.float32)
-    flat = data.reshape((-1,) + first.shape)
+    data = np.zeros(tuple(grid_shape) + tuple(first_shape), np.float32)
+    flat = data.reshape((-1,) + tuple(first_shape))
     present = [i for i, path in enumerate(paths) if path is not None]
-    flat[present[0]] = first
-    total = len(present)
-    if progress is not None:
-        progress(1, total)
+    summaries = [None] * len(paths)
 
-    def read_into(i):
-        flat[i] = _read_view(paths[i], first_path, first.shape)
+    def read_into(i):  # in a reader thread: the view is summarised while it is in the cache
+        _, summaries[i] = _read_view(paths[i], first_path, first_shape, flat[i], summarise)
 
     with ThreadPoolExecutor(_READ_THREADS) as pool:
-        futures = [pool.submit(read_into, i) for i in present[1:]]
+        futures = [pool.submit(read_into, i) for i in present]
         try:
-            for done, future in enumerate(futures, start=2):
+            for done, future in enumerate(futures, start=1):
                 future.result()  # re-raises the first failure, in view order
                 if progress is not None:
-                    progress(done, total)
+                    progress(done, len(present))
         except BaseException:
             for future in futures:
                 future.cancel()
             raise
-    return data
+    return data, summaries
 
 
 def _read_lazy(paths, grid_shape, progress):
@@ -118,7 +117,7 @@ def _read_lazy(paths, grid_shape, progress):
         path = paths[u * n_cols + v]
         if path is None:  # a view missing from the folder: weight 0
             return np.zeros((1, 1) + tuple(first_shape), np.float32)
-        return _read_view(path, first_path, first_shape)[None, None]
+        return _read_view(path, first_path, first_shape)[0][None, None]
 
     stamps = [(str(p), p.stat().st_mtime_ns, p.stat().st_size) if p is not None else None for p in paths]
     chunks = tuple((1,) * n for n in grid_shape) + tuple((n,) for n in first_shape)
@@ -152,7 +151,21 @@ def _warn_missing(folder, layout):
     )
 
 
-def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite="raise", **options):
+def _examine_artefacts(artefacts, lazy):
+    """Whether to look for black borders, vignetting and clipped light (``artefacts=None``: when eager)."""
+    if artefacts is None:
+        return not lazy
+    _validate.boolean("artefacts", artefacts)
+    if artefacts and lazy:
+        raise ParameterError(
+            "artefacts=True needs every view read at load time, which lazy=True avoids: load eagerly "
+            "(lazy=False), or pass artefacts=False"
+        )
+    return bool(artefacts)
+
+
+def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite="raise", artefacts=None,
+                      **options):
     """Load a folder of views (one image file per view) as a light field.
 
     Parameters
@@ -177,6 +190,15 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
     nonfinite : {"raise", "mask"}
         NaN or Inf samples (float TIFF views): refuse them, or give them
         weight 0 (see :class:`~napari_lfalias.LightField`).
+    artefacts : bool, optional
+        Look for what a real camera leaves in exported views
+        (:mod:`~napari_lfalias.decoders.artefacts`): black borders get
+        weight 0; clearly vignetted views (a plenoptic camera's dark
+        corner views) are divided by their fall-off relative to the
+        brightest view, which becomes their weight; clipped light is set
+        to one level in every view at half weight. ``None`` (default): when the
+        views are read now (not with ``lazy=True``); ``False``: the views
+        exactly as the files hold them.
 
     Returns
     -------
@@ -187,6 +209,10 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
         ``"files"`` (row-major, ``None`` for a missing view), and for HCI
         ``"hci"`` (the parameters), ``"disparity"`` (ground truth in this
         package's sign) and ``"disparity_range"``.
+
+        With ``artefacts``, ``weights`` holds what was found and
+        ``meta["artefacts"]`` reports it (absent when nothing was: the
+        light field is then exactly the files' values).
 
         Views missing from a partial grid (the HCI training scenes are
         often handed around as 33 of their 81 views) keep their positions
@@ -201,7 +227,8 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
         an unreadable or truncated file, or views whose decoded size (from
         their headers) exceeds the memory budget.
     ParameterError
-        An unknown option or a malformed ``grid``.
+        An unknown option, a malformed ``grid``, or ``artefacts=True``
+        with ``lazy=True``.
 
     Examples
     --------
@@ -228,8 +255,11 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
         raise DecodeError(f"{folder}: not a folder; pass the folder that holds the view images")
     layout = find_views(folder, grid)
     paths = layout.flat_paths()
-    read = _read_lazy if lazy else _read_eager
-    data = read(paths, layout.grid_shape, progress)
+    examine = _examine_artefacts(artefacts, lazy)
+    if lazy:
+        data = _read_lazy(paths, layout.grid_shape, progress)
+    else:
+        data, summaries = _read_eager(paths, layout.grid_shape, progress, summarise_view if examine else None)
     meta = {"source": str(folder), "format": layout.format,
             "files": [str(p) if p is not None else None for p in paths]}
     meta.update(layout.meta)
@@ -238,4 +268,8 @@ def load_camera_array(folder, *, grid=None, lazy=False, progress=None, nonfinite
     weights = _missing_view_weights(layout, data.shape[2:4])
     if layout.missing:
         _warn_missing(folder, layout)
+    if examine:
+        weights, found = correct_artefacts(data, summaries, weights, source=str(folder))
+        if found:
+            meta["artefacts"] = found
     return LightField(data, layout.positions, meta, weights=weights, nonfinite=nonfinite)

@@ -58,7 +58,8 @@ def methods(lf, slope, disparity, aliased, estimate):
     analytic = dict(method="analytic")
     return {
         "naive refocus": lambda: lfa.refocus(lf, slope),
-        "prefilter (Levoy-Hanrahan)": lambda: lfa.prefilter_refocus(lf, slope),
+        "prefilter (Levoy-Hanrahan, true disparity range)": lambda: lfa.prefilter_refocus(
+            lf, slope, disparity_range=(float(disparity.min()), float(disparity.max()))),
         "depth-aware (ground-truth disparity)": lambda: lfa.depth_aware_refocus(lf, slope, disparity),
         "default: dense-aperture rendering where aliased (estimated disparity), T=0.02": lambda: lfa.reduce_aliasing(
             lf, slope, disparity=estimate).image,

@@ -82,9 +82,14 @@ class Reduction:
     image : ndarray, shape (Y, X, C), float32
         The aliasing-reduced refocus.
     level : ndarray, shape (Y, X), uint8
-        ``l*`` of every pixel (Eq. 8): 0 where the naive refocus is kept.
+        0 where the naive refocus is kept exactly; elsewhere, for the Cv
+        methods ``l*`` (Eq. 8), and for ``method="depth"`` the pyramid level
+        the pixel's disparity implies (:func:`levels_from_disparity`), at
+        least 1 on every changed pixel, the blend's soft edge included.
     cv : ndarray, shape (Y, X), float32
-        The level-0 Cv (Algorithm 1 on the full-resolution refocus).
+        The level-0 Cv (Algorithm 1 on the full-resolution refocus); for
+        ``method="depth"``, the aliasing score (the predicted relative
+        luminance error of the naive refocus against a dense aperture).
     refocused : ndarray, shape (Y, X, C), float32
         The naive refocus (level 0), for comparison.
     detections : list of Detection

@@ -76,3 +76,14 @@ def boolean(name, value):
     if not isinstance(value, (bool, np.bool_)):
         raise ParameterError(f"{name} must be True or False, got {value!r}")
     return bool(value)
+
+
+def value_range(name, value):
+    """``(low, high)`` as floats from a pair, finite with ``low <= high``, or a :class:`ParameterError` naming ``name``."""
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} must be a pair (low, high), got {value!r}") from None
+    if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+        raise ParameterError(f"{name} must be finite with low <= high, got {value!r}")
+    return low, high

@@ -47,7 +47,6 @@ dtype('float32')
 from __future__ import annotations
 
 import importlib
-import math
 
 import numpy as np
 from scipy import ndimage
@@ -107,13 +106,7 @@ def _disparity_range(lf, disparity_range):
             "(the scene's smallest and largest disparity, px per view step); the light field's "
             "meta has neither 'disparity_range' nor a 'disparity' map"
         )
-    try:
-        low, high = (float(v) for v in disparity_range)
-    except (TypeError, ValueError):
-        raise ParameterError(f"disparity_range must be a pair (low, high), got {disparity_range!r}") from None
-    if not (math.isfinite(low) and math.isfinite(high)) or low > high:
-        raise ParameterError(f"disparity_range must be finite with low <= high, got {disparity_range!r}")
-    return low, high
+    return _validate.value_range("disparity_range", disparity_range)
 
 
 def prefilter_width(lf, slope, disparity_range=None):

@@ -463,13 +463,7 @@ def _search_range(lf, disparity_range, qmax):
             return low - margin, high + margin
         reach = 0.1 * min(lf.image_shape) / max(qmax, 1e-9)
         return -reach, reach
-    try:
-        low, high = (float(v) for v in disparity_range)
-    except (TypeError, ValueError):
-        raise ParameterError(f"disparity_range must be a pair (low, high), got {disparity_range!r}") from None
-    if not (math.isfinite(low) and math.isfinite(high)) or low > high:
-        raise ParameterError(f"disparity_range must be finite with low <= high, got {disparity_range!r}")
-    return low, high
+    return _validate.value_range("disparity_range", disparity_range)
 
 
 def _coarse_level(shape):

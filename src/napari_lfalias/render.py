@@ -139,7 +139,7 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     sharp = ~np.any(taps != 0, axis=1)
     behind = np.zeros(len(taps), bool)
     behind[order] = occluders >= 0
-    shows = np.isin(bins, np.flatnonzero(sharp & behind)) & (stack.weights > 0)
+    shows = np.append(sharp & behind, False)[bins] & (stack.weights > 0)  # bin -1 (no surface): False
     weight = np.where(shows, stack.weights, 0).astype(np.float32)
     total = weight.sum(axis=0)
     colour = np.einsum("nyx,nyxc->yxc", weight, stack.values)

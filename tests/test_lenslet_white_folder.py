@@ -96,6 +96,15 @@ def test_each_white_image_is_calibrated_once(camera, cache, monkeypatch):
         lfa.load(raw, white=whites)
 
 
+def test_progress_through_a_folder_reaches_its_total(camera, cache):
+    whites, raw, _ = camera
+    steps = []
+    lfa.load(raw, white=whites, progress=lambda *step: steps.append(step))
+    decode = [step for step in steps if step[1] > 1]  # after reading the capture (0 of 1)
+    assert decode[0] == (0, 11, "choosing the white image and fitting its grid")
+    assert [done for done, _, _ in decode] == list(range(12)) and decode[-1] == (11, 11, "done")
+
+
 def test_no_fitting_white_image_is_a_clear_error(camera, cache, tmp_path):
     whites, raw, capture = camera
     other = tmp_path / "other.tif"

@@ -5,7 +5,12 @@ the fall-off under every microlens; the white image relative to its bright
 level is each sample's validity (weight), and pixels below ``min_weight``
 are dropped. A Bayer mosaic is divided channel by channel and demosaiced
 afterwards (OpenCV edge-aware), so the lens rims do not leak colour into
-the views.
+the views. Before the demosaicing, every dropped pixel of the mosaic takes
+the validity-weighted mean of its lit neighbours of the same colour (two
+pixels away): the demosaicing interpolates each colour from up to two
+pixels around, and zeros in the gaps between microlenses would darken the
+views at the lens rims (by up to 13 % in the red and blue of a rectangular
+grid's diagonal views). The dropped pixels keep weight 0.
 
 Saturation
 ----------
@@ -215,6 +220,37 @@ def _divide(raw, white, dark, has_dark, tile, is_mosaic, levels, min_weight, cei
 
 
 @njit(cache=True, parallel=True)
+def _fill_dropped(mosaic, valid):
+    """In place: every pixel of weight 0 gets the weighted mean of its same-colour neighbours of weight > 0.
+
+    The neighbours are the eight at offsets of 0 or 2 on each axis (same
+    Bayer colour); a pixel none of which is lit keeps its value. Only
+    dropped pixels are written and only lit ones read, so rows run in parallel.
+    """
+    height, width = mosaic.shape
+    for y in prange(height):
+        for x in range(width):
+            if valid[y, x] > 0.0:
+                continue
+            total = 0.0
+            weight = 0.0
+            for dy in (-2, 0, 2):
+                yy = y + dy
+                if yy < 0 or yy >= height:
+                    continue
+                for dx in (-2, 0, 2):
+                    xx = x + dx
+                    if xx < 0 or xx >= width:
+                        continue
+                    w = valid[yy, xx]
+                    if w > 0.0:
+                        total += w * mosaic[yy, xx]
+                        weight += w
+            if weight > 0.0:
+                mosaic[y, x] = total / weight
+
+
+@njit(cache=True, parallel=True)
 def _clamp_channels(image, limits):
     """In place: channel ``c`` of every pixel at most ``limits[c]``."""
     for y in prange(image.shape[0]):
@@ -273,6 +309,8 @@ def divide_by_white(raw, white=None, dark=None, min_weight=0.05, saturation="aut
         )
     scale = 1.0
     if mosaic:
+        if white is not None:
+            _fill_dropped(ratio[..., 0], valid)  # before clipped samples' weights are lowered: still lit
         image, scale = demosaic16(ratio[..., 0], raw.bayer, float(row_max.max()))
         del ratio
         if clip is not None:  # the demosaicing may overshoot the ceiling

@@ -173,7 +173,8 @@ def decode_steps(raw, white=None, dark=None, grid=None, *, bayer=None, n_views=N
     total = 2 + _SLICE_BLOCKS + (1 if model is None else 0)
     done = 0
     if white is not None and _is_white_folder(white):
-        yield done, total, "choosing the white image"
+        yield done, total, "choosing the white image" + (" and fitting its grid" if model is None else "")
+        done += 1 if model is None else 0  # the step counted for the calibration
         white_image, model, choice = _white_from_folder(white, raw_image, dark_image, model, bayer, options)
     else:
         white_image = None if white is None else as_sensor_image(white, bayer=bayer, name="white")

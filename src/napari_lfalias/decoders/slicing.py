@@ -23,7 +23,7 @@ one square grid: the shift is removed by the resampling itself, never by
 moving whole rows. The value is a Catmull-Rom cubic along the row through
 the four nearest lenses of that row, each sampled at the same view offset
 (exact for cubic polynomials along the row, so no comb between rows of
-the two parities; tested by ``tests/test_lenslet_hexagonal.py``). Where one
+the two parities; tested by ``tests/test_lenslet_roundtrip.py``). Where one
 of the four is invalid it falls back to the two nearest lenses, linearly.
 
 The work is one numba kernel, parallel over lens rows: each lens row is

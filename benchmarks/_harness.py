@@ -64,6 +64,19 @@ def write_report(path, title, sections):
     return path
 
 
+#: Markers of the hand-written notes of a report, kept when the report is written again.
+NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- end of notes -->"
+
+
+def kept_notes(path):
+    """The hand-written notes of an earlier report at ``path`` (between the markers), or a placeholder."""
+    path = Path(path)
+    text = path.read_text() if path.exists() else ""
+    if NOTES_BEGIN in text and NOTES_END in text:
+        return NOTES_BEGIN + text.split(NOTES_BEGIN, 1)[1].split(NOTES_END, 1)[0] + NOTES_END
+    return f"{NOTES_BEGIN}\n(no notes yet)\n{NOTES_END}"
+
+
 #: Relative luminance error a viewer perceives (the paper's T = 0.02: "minimal intensity of perceivable aliasing").
 PERCEPTIBLE = 0.02
 

@@ -37,7 +37,7 @@ import numpy as np
 import napari_lfalias as lfa
 from napari_lfalias import metrics
 
-from _harness import table, write_report
+from _harness import kept_notes, table, write_report
 from accuracy_cases import all_cases
 
 ANALYTIC_T = 0.005
@@ -172,7 +172,8 @@ def main(argv=None):
     summary_md = "## Summary (differences against the naive refocus, dB)\n\n" + table(head, rows)
     print(summary_md)
     if args.out is not None:
-        write_report(args.out, "Accuracy of aliasing detection and reduction", [summary_md] + sections)
+        notes = "## Notes (written by hand, kept when re-run)\n\n" + kept_notes(args.out)
+        write_report(args.out, "Accuracy of aliasing detection and reduction", [summary_md, notes] + sections)
 
 
 if __name__ == "__main__":

@@ -60,7 +60,7 @@ from napari_lfalias.baselines import _depth_edges
 from napari_lfalias.disparity import disparity_scores
 from napari_lfalias.lightfield import REC709
 
-from _harness import median_iqr, memory_floor, table, timings, write_report
+from _harness import kept_notes, median_iqr, memory_floor, table, timings, write_report
 from accuracy_cases import HCI, synthetic_cases
 
 #: Pixels ignored along every edge (the HCI benchmark's border).
@@ -82,7 +82,6 @@ WEAK_TEXTURE = 0.01
 CONFIDENT = 0.5
 #: Scale factors of the units check: the sign (-1) and the steps of the sub-grids (2, 3).
 UNIT_FACTORS = (-1.0, 1 / 3, 1 / 2, 1.0, 2.0, 3.0)
-NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- end of notes -->"
 
 
 # -- the baseline ------------------------------------------------------------------------------------
@@ -313,15 +312,6 @@ def goal_line(result):
              for label, value, limit, unit in checks]
     met = all(value <= limit for _, value, limit, _ in checks)
     return f"**Goal of issue 12 on the full 9x9 grid: {'MET' if met else 'NOT MET'}** ({'; '.join(parts)})."
-
-
-def kept_notes(path):
-    """The hand-written notes of an earlier report at ``path`` (between the markers), or a placeholder."""
-    path = Path(path)
-    text = path.read_text() if path.exists() else ""
-    if NOTES_BEGIN in text and NOTES_END in text:
-        return NOTES_BEGIN + text.split(NOTES_BEGIN, 1)[1].split(NOTES_END, 1)[0] + NOTES_END
-    return f"{NOTES_BEGIN}\n(no notes yet)\n{NOTES_END}"
 
 
 def load_line():

@@ -12,6 +12,7 @@ from napari_lfalias.synthetic import layered_scene, textured_plane
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 sys.path.insert(0, str(BENCHMARKS))
 bench = pytest.importorskip("bench_disparity")
+harness = pytest.importorskip("_harness")
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +130,7 @@ def test_goal_line_and_kept_notes(tmp_path):
     result["scores"]["mse_x100"] = 2.5
     assert "NOT MET" in bench.goal_line(result)
     report = tmp_path / "r.md"
-    assert "(no notes yet)" in bench.kept_notes(report)
-    report.write_text(f"# t\n\n{bench.NOTES_BEGIN}\nhalos at the silhouette\n{bench.NOTES_END}\n\nmore")
-    assert bench.kept_notes(report) == f"{bench.NOTES_BEGIN}\nhalos at the silhouette\n{bench.NOTES_END}"
+    assert "(no notes yet)" in harness.kept_notes(report)
+    begin, end = harness.NOTES_BEGIN, harness.NOTES_END
+    report.write_text(f"# t\n\n{begin}\nhalos at the silhouette\n{end}\n\nmore")
+    assert harness.kept_notes(report) == f"{begin}\nhalos at the silhouette\n{end}"

@@ -83,14 +83,24 @@ def _idle(qtbot, widget):
     qtbot.waitUntil(lambda: not widget.jobs.busy(), timeout=TIMEOUT_MS)
 
 
-@pytest.fixture
-def scene_viewer(make_napari_viewer, qtbot):
-    viewer = make_napari_viewer()
+def _scene_viewer(make_napari_viewer, qtbot, show):
+    viewer = make_napari_viewer(show=show)
     lf = _scene()
     _add(viewer, lf)
     widget = _open_widget(viewer, qtbot)
     yield viewer, widget, lf
     assert widget.shutdown()
+
+
+@pytest.fixture
+def scene_viewer(make_napari_viewer, qtbot):
+    yield from _scene_viewer(make_napari_viewer, qtbot, show=False)
+
+
+@pytest.fixture
+def shown_scene_viewer(make_napari_viewer, qtbot):
+    """The scene in a viewer shown on screen (the canvas draws each update, as for a user)."""
+    yield from _scene_viewer(make_napari_viewer, qtbot, show=True)
 
 
 def test_focus_range_comes_from_the_ground_truth_disparity(scene_viewer):
@@ -513,8 +523,8 @@ def _start_gated_reduction(qtbot, widget, entered):
     qtbot.waitUntil(entered.is_set, timeout=TIMEOUT_MS)  # inside its second stage
 
 
-def test_cancel_during_a_reduction_then_a_focus_change_updates_the_cv(scene_viewer, qtbot, gated_levels):
-    viewer, widget, lf = scene_viewer
+def test_cancel_during_a_reduction_then_a_focus_change_updates_the_cv(shown_scene_viewer, qtbot, gated_levels):
+    viewer, widget, lf = shown_scene_viewer
     gate, entered = gated_levels
     _wait_for(qtbot, viewer, "cv", slope=widget.slope)
     _start_gated_reduction(qtbot, widget, entered)
@@ -538,8 +548,8 @@ def test_cancel_during_a_reduction_then_a_focus_change_updates_the_cv(scene_view
     np.testing.assert_array_equal(cv.data, expected.cv)
 
 
-def test_a_second_reduce_click_stops_the_first_and_finishes(scene_viewer, qtbot, gated_levels):
-    viewer, widget, lf = scene_viewer
+def test_a_second_reduce_click_stops_the_first_and_finishes(shown_scene_viewer, qtbot, gated_levels):
+    viewer, widget, lf = shown_scene_viewer
     gate, entered = gated_levels
     _start_gated_reduction(qtbot, widget, entered)
     widget.reduce()  # the second click while the first reduction runs
@@ -553,10 +563,10 @@ def test_a_second_reduce_click_stops_the_first_and_finishes(scene_viewer, qtbot,
     assert [layer.metadata.get("lfalias") for layer in viewer.layers].count("fused") == 1
 
 
-def test_a_reduction_stopped_by_a_focus_change_says_so(scene_viewer, qtbot, gated_levels):
+def test_a_reduction_stopped_by_a_focus_change_says_so(shown_scene_viewer, qtbot, gated_levels):
     from napari.utils.notifications import notification_manager
 
-    viewer, widget, lf = scene_viewer
+    viewer, widget, lf = shown_scene_viewer
     gate, entered = gated_levels
     _start_gated_reduction(qtbot, widget, entered)
     before = len(notification_manager.records)
@@ -576,7 +586,7 @@ def test_closing_the_viewer_during_a_reduction_ends_cleanly(make_napari_viewer, 
     from qtpy.QtCore import QThreadPool
 
     gate, entered = gated_levels
-    viewer = make_napari_viewer()
+    viewer = make_napari_viewer(show=True)
     _add(viewer, _scene())
     widget = _open_widget(viewer, qtbot)
     _wait_for(qtbot, viewer, "cv", slope=widget.slope)

@@ -120,3 +120,38 @@ def test_the_writer_refuses_what_it_cannot_keep(make_napari_viewer, tmp_path):
     with pytest.raises(LightFieldError, match="read from; choose another name"):
         write_layer(path, *layer.as_layer_data_tuple()[:2])
     assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("channels", [3, 1])
+def test_a_light_field_saved_with_naparis_own_file_type_opens_and_says_what_was_lost(
+        make_napari_viewer, tmp_path, monkeypatch, channels):
+    """The dialog's first file type is napari's builtin TIFF writer: the views come back, the positions do not."""
+    lf = _lightfield()
+    lf = lfa.LightField(lf.data[..., :channels], lf.positions, meta=lf.meta)
+    viewer = make_napari_viewer()
+    data, kwargs, _ = lightfield_layer_data(lf, "scene")
+    layer = viewer.add_image(data, **kwargs)
+    offered = _save_with_the_dialog(viewer, monkeypatch, layer, tmp_path / "scene.tif", "napari builtins lossless")
+    assert offered[0].startswith("napari builtins")  # what a user who picks nothing gets
+    with pytest.warns(lfa.errors.LightFieldWarning, match="scene.tif holds the views .* not their positions"):
+        opened = viewer.open(tmp_path / "scene.tif", plugin=PLUGIN)
+    read = lightfield_of(opened[0])
+    np.testing.assert_array_equal(np.asarray(read.data), lf.data)
+    np.testing.assert_array_equal(read.positions, lfa.regular_positions(3, 4))
+
+
+def test_plain_stacks_that_are_no_light_field_are_left_to_napari(tmp_path):
+    import tifffile
+
+    from napari_lfalias._napari import _reader
+
+    rng = np.random.default_rng(0)
+    for name, array, kwargs in (
+        ("zstack.tif", rng.random((5, 32, 32), dtype=np.float32), {}),  # 3-D
+        ("two_views.tif", rng.random((1, 2, 32, 32), dtype=np.float32), {}),  # fewer than 4 views
+        # views smaller than the grid
+        ("tiny_views.tif", rng.random((9, 9, 4, 4), dtype=np.float32), {"photometric": "minisblack"}),
+        ("imagej.tif", rng.random((3, 3, 32, 32), dtype=np.float32), {"imagej": True}),  # not napari's writer
+    ):
+        tifffile.imwrite(tmp_path / name, array, **kwargs)
+        assert _reader.get_saved_lightfield_reader(str(tmp_path / name)) is None, name

@@ -408,7 +408,9 @@ def get_saved_lightfield_reader(path):
     (ImageJ hyperstack TIFFs and ``.zarr`` stores with the napari-lfalias
     header) open as light-field layers; outputs saved from napari
     (:mod:`._writer`) open as the same kind of layer, with their
-    parameters. Both are recognised from the file's metadata only.
+    parameters. Both are recognised from the file's metadata only. A
+    light-field layer saved with napari's builtin TIFF writer (the views
+    without their positions) opens on a regular grid, with a warning.
     """
     path = _single_path(path)
     if path is None or path.suffix.lower() not in (".tif", ".tiff", ".zarr"):
@@ -432,7 +434,59 @@ def get_saved_lightfield_reader(path):
                 return [read_output(path)]
 
         return read_saved_output
+    if path.suffix.lower() in (".tif", ".tiff") and _plain_lightfield_stack(path):
+        return _read_plain_stack
     return None
+
+
+#: Most views per side of a light field saved as a plain stack; more is a stack of something else.
+_MAX_PLAIN_VIEWS = 64
+
+
+def _plain_lightfield_stack(path):
+    """True for a light-field layer saved by napari's builtin TIFF writer (views kept, positions lost).
+
+    That writer (tifffile, "shaped" JSON description, no ImageJ or OME
+    header) keeps the layer's array: ``(U, V, Y, X)`` grey or
+    ``(U, V, Y, X, 3)`` colour. It is taken for a light field when it has
+    at least 4 views, at most :data:`_MAX_PLAIN_VIEWS` a side, each larger
+    than the grid of views. Only the TIFF header is read.
+    """
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            if not tif.is_shaped or tif.is_imagej or tif.is_ome or len(tif.series) != 1:
+                return False
+            shape = tuple(tif.series[0].shape)
+    except Exception:  # noqa: BLE001 - an unreadable TIFF is not ours; napari's reader names the damage
+        return False
+    if not (len(shape) == 4 or (len(shape) == 5 and shape[4] == 3)):
+        return False
+    n_rows, n_cols, height, width = shape[:4]
+    return (n_rows * n_cols >= _MIN_VIEWS and max(n_rows, n_cols) <= _MAX_PLAIN_VIEWS
+            and min(height, width) > max(n_rows, n_cols))
+
+
+def _read_plain_stack(path):
+    """Open a plain TIFF stack of views on a regular grid, warning that its positions were not saved."""
+    import warnings
+
+    import tifffile
+
+    from .. import LightField
+    from ..errors import LightFieldWarning
+    from ._controls import PLUGIN_MENU
+
+    path = _single_path(path)
+    with _said(path):
+        lf = LightField(tifffile.imread(path))
+    warnings.warn(LightFieldWarning(
+        f"{path.name} holds the views of a light field but not their positions or metadata (napari's "
+        f"builtin TIFF writer saved it): the views are taken as a regular grid, one step apart. To keep "
+        f"them, save the light field with the file type '{PLUGIN_MENU} light field or aliasing output'"),
+        stacklevel=2)
+    return [lightfield_layer_data(lf, path.stem)]
 
 
 # -- Lytro ----------------------------------------------------------------

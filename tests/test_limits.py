@@ -123,6 +123,17 @@ def test_huge_slopes_give_the_result_of_views_shifted_out_of_the_image(slope):
         assert np.isfinite(det.cv).all() and not det.mask.any()  # one view: nothing varies
 
 
+@pytest.mark.parametrize("slope", [3.4028235677973366e38, 1e39, -1e300])
+def test_the_default_reduction_takes_slopes_beyond_float32(slope):
+    """Such a slope once overflowed the float32 disparity the renderer bins (fuzz: ValueError from NaN)."""
+    lf = lfa.LightField(np.random.default_rng(0).random((3, 3, 16, 16, 1), np.float32))
+    far = lfa.reduce_aliasing(lf, slope)
+    near = lfa.reduce_aliasing(lf, np.copysign(1e30, slope))
+    assert np.isfinite(far.image).all()
+    np.testing.assert_array_equal(far.image, near.image)
+    np.testing.assert_array_equal(far.level, near.level)
+
+
 def test_levels_beyond_any_image_are_refused_by_name(capsys, tmp_path):
     lf = lfa.LightField(np.random.default_rng(0).random((2, 2, 8, 8, 1), np.float32))
     for level in (17, 63, 300):

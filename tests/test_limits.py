@@ -144,6 +144,15 @@ def test_levels_beyond_any_image_are_refused_by_name(capsys, tmp_path):
     assert capsys.readouterr().err == "lfalias: error: --levels must be an integer from 0 to 16, got 300\n"
 
 
+@pytest.mark.parametrize("peak", [3e37, 3e38])
+def test_refocus_of_data_near_the_float32_maximum_is_the_scaled_refocus(peak):
+    """The float32 sums of 16 views this bright overflow: refocus once returned inf here."""
+    lf = brick_room(n_views=4, size=48, seed=0).lightfield
+    scale = peak / float(lf.data.max())
+    found = lfa.refocus(lfa.LightField((lf.data.astype(np.float64) * scale).astype(np.float32), lf.positions), 2.0)
+    np.testing.assert_allclose(found.astype(np.float64) / scale, lfa.refocus(lf, 2.0), rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("scale", [1e-30, 1e-20, 1e-10, 1e10, 1e20, 1e30])
 @pytest.mark.parametrize("method, luminance", [("analytic", "rec709"), ("monte_carlo", "rec709"), ("analytic", "max")])
 def test_cv_does_not_depend_on_the_scale_of_the_data(scale, method, luminance):

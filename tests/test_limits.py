@@ -153,6 +153,20 @@ def test_refocus_of_data_near_the_float32_maximum_is_the_scaled_refocus(peak):
     np.testing.assert_allclose(found.astype(np.float64) / scale, lfa.refocus(lf, 2.0), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("peak", [1e-40, 3e38])
+@pytest.mark.parametrize("method", ["analytic", "monte_carlo"])
+def test_cv_of_subnormal_and_near_maximal_float32_data(peak, method):
+    """A subnormal peak once asked for a scale float32 cannot hold (inf, so a NaN Cv)."""
+    lf = brick_room(n_views=4, size=48, seed=0).lightfield
+    options = dict(method=method, seed=2, threshold=0.01)
+    reference = lfa.detect_aliasing(lf, 2.0, **options)
+    data = (lf.data.astype(np.float64) * (peak / float(lf.data.max()))).astype(np.float32)
+    found = lfa.detect_aliasing(lfa.LightField(data, lf.positions), 2.0, **options)
+    # 1e-40 is subnormal: the data themselves keep about 17 bits
+    np.testing.assert_allclose(found.cv, reference.cv, rtol=0, atol=1e-4 * reference.cv.max())
+    np.testing.assert_array_equal(found.mask, reference.mask)
+
+
 @pytest.mark.parametrize("scale", [1e-30, 1e-20, 1e-10, 1e10, 1e20, 1e30])
 @pytest.mark.parametrize("method, luminance", [("analytic", "rec709"), ("monte_carlo", "rec709"), ("analytic", "max")])
 def test_cv_does_not_depend_on_the_scale_of_the_data(scale, method, luminance):

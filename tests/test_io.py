@@ -16,6 +16,7 @@ import tifffile
 
 import napari_lfalias as lfa
 from napari_lfalias import _atomic, io_write
+from napari_lfalias.cli import main
 from napari_lfalias.errors import DecodeError, NonFiniteError, OutputExistsError, ParameterError
 
 from _cli_scenes import plane_lightfield, temporaries
@@ -169,6 +170,37 @@ def test_truncated_tiffs_are_named(tmp_path, weighted):
         damaged.write_bytes(raw[:cut])
         with pytest.raises(DecodeError, match=f"cut{cut}.tif: .*{match}"):
             lfa.load(damaged)
+
+
+@pytest.mark.parametrize("cut", [300, 5000])
+def test_a_damaged_tiff_is_one_named_line_from_info_and_the_commands(tmp_path, weighted, cut, capsys, caplog):
+    """``info`` decodes an image file rather than describing a damaged one; tifffile's own complaints stay quiet."""
+    raw = lfa.save(weighted, tmp_path / "views.tif").read_bytes()
+    damaged = tmp_path / "cut.tif"
+    damaged.write_bytes(raw[:cut])
+    for argv in (["info", str(damaged)], ["refocus", str(damaged), "--slope", "0", "-o", str(tmp_path / "r.tif")]):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert err.splitlines() == [err.strip()], err
+        assert err.startswith(f"lfalias: error: {damaged}: ") and ("cannot read" in err or "truncated" in err), err
+    assert [record.msg for record in caplog.records if record.name.startswith("tifffile")] == []
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["cut.tif", "views.tif"]
+
+
+def test_results_written_by_the_commands_and_napari_are_named_not_decoded_as_captures(tmp_path, weighted, capsys):
+    from napari_lfalias._napari._writer import output_header
+
+    views = lfa.save(weighted, tmp_path / "views.tif")
+    refocused = tmp_path / "refocused.tif"
+    assert main(["refocus", str(views), "--slope", "0", "-o", str(refocused), "-q"]) == 0
+    cv = io_write.write_tiff(tmp_path / "cv.tif", np.zeros((20, 20), np.float32),
+                             output_header("cv", "views", {"slope": 0.0}))
+    for path, kind in [(refocused, "image"), (cv, "cv")]:
+        with pytest.raises(DecodeError, match=f"{path.name}: a result written by napari-lfalias \\('{kind}'"):
+            lfa.load(path)
+        assert main(["info", str(path)]) == 0
+        out = capsys.readouterr().out
+        assert f"napari-lfalias result ('{kind}', one image), not a light field" in out and "20 x 20" in out
 
 
 @pytest.fixture

@@ -123,6 +123,17 @@ def test_huge_slopes_give_the_result_of_views_shifted_out_of_the_image(slope):
         assert np.isfinite(det.cv).all() and not det.mask.any()  # one view: nothing varies
 
 
+@pytest.mark.parametrize("slope", [3.4028235677973366e38, 1e39, -1e300])
+def test_the_default_reduction_takes_slopes_beyond_float32(slope):
+    """Such a slope once overflowed the float32 disparity the renderer bins (fuzz: ValueError from NaN)."""
+    lf = lfa.LightField(np.random.default_rng(0).random((3, 3, 16, 16, 1), np.float32))
+    far = lfa.reduce_aliasing(lf, slope)
+    near = lfa.reduce_aliasing(lf, np.copysign(1e30, slope))
+    assert np.isfinite(far.image).all()
+    np.testing.assert_array_equal(far.image, near.image)
+    np.testing.assert_array_equal(far.level, near.level)
+
+
 def test_levels_beyond_any_image_are_refused_by_name(capsys, tmp_path):
     lf = lfa.LightField(np.random.default_rng(0).random((2, 2, 8, 8, 1), np.float32))
     for level in (17, 63, 300):
@@ -131,6 +142,29 @@ def test_levels_beyond_any_image_are_refused_by_name(capsys, tmp_path):
     path = lfa.save(lf, tmp_path / "views.tif")
     assert main(["reduce", str(path), "--slope", "0", "--levels", "300", "-o", str(tmp_path / "r.png")]) == 1
     assert capsys.readouterr().err == "lfalias: error: --levels must be an integer from 0 to 16, got 300\n"
+
+
+@pytest.mark.parametrize("peak", [3e37, 3e38])
+def test_refocus_of_data_near_the_float32_maximum_is_the_scaled_refocus(peak):
+    """The float32 sums of 16 views this bright overflow: refocus once returned inf here."""
+    lf = brick_room(n_views=4, size=48, seed=0).lightfield
+    scale = peak / float(lf.data.max())
+    found = lfa.refocus(lfa.LightField((lf.data.astype(np.float64) * scale).astype(np.float32), lf.positions), 2.0)
+    np.testing.assert_allclose(found.astype(np.float64) / scale, lfa.refocus(lf, 2.0), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("peak", [1e-40, 3e38])
+@pytest.mark.parametrize("method", ["analytic", "monte_carlo"])
+def test_cv_of_subnormal_and_near_maximal_float32_data(peak, method):
+    """A subnormal peak once asked for a scale float32 cannot hold (inf, so a NaN Cv)."""
+    lf = brick_room(n_views=4, size=48, seed=0).lightfield
+    options = dict(method=method, seed=2, threshold=0.01)
+    reference = lfa.detect_aliasing(lf, 2.0, **options)
+    data = (lf.data.astype(np.float64) * (peak / float(lf.data.max()))).astype(np.float32)
+    found = lfa.detect_aliasing(lfa.LightField(data, lf.positions), 2.0, **options)
+    # 1e-40 is subnormal: the data themselves keep about 17 bits
+    np.testing.assert_allclose(found.cv, reference.cv, rtol=0, atol=1e-4 * reference.cv.max())
+    np.testing.assert_array_equal(found.mask, reference.mask)
 
 
 @pytest.mark.parametrize("scale", [1e-30, 1e-20, 1e-10, 1e10, 1e20, 1e30])

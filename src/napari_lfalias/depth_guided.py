@@ -137,6 +137,7 @@ class DepthGuide:
 
     def rendering(self, slope):
         """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
+        from ._kernels import MAX_SHIFT
         from .render import render_dense_aperture
 
         slope = _validate.finite_float("slope", slope)
@@ -145,9 +146,11 @@ class DepthGuide:
             disparity, confidence = self.estimate
             # the surfaces the views show in focus are in focus, whatever the estimate says
             in_focus = self.focus_test(slope)
-            disparity = np.where(in_focus, np.float32(slope), disparity)
+            # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
+            rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
+            disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
             confidence = np.where(in_focus, np.float32(1), confidence)
-            self._rendering = render_dense_aperture(self.lf, slope, disparity, confidence,
+            self._rendering = render_dense_aperture(self.lf, rendered_slope, disparity, confidence,
                                                     larger_first=self.larger_first)
         return self._rendering
 

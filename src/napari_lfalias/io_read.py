@@ -35,7 +35,7 @@ from . import _budget
 from .errors import DecodeError, ParameterError
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "LIGHTFIELD_SUFFIXES", "is_lightfield_file", "is_zarr_store",
-           "read_lightfield", "require_zarr"]
+           "output_image_kind", "read_lightfield", "require_zarr"]
 
 #: Marker of the light-field files napari-lfalias writes.
 FORMAT_NAME = "napari-lfalias light field"
@@ -118,6 +118,40 @@ def is_lightfield_file(path):
     if suffix in (".tif", ".tiff") and path.is_file():
         return _hyperstack_header(path)
     return None
+
+
+def output_image_kind(path):
+    """What a one-image TIFF written by napari-lfalias holds (``"image"``, ``"cv"``, ``"mask"``...), else ``None``.
+
+    The commands (``lfalias refocus``, ``detect``, ``reduce``, ``depth``)
+    record it as ``content`` in the TIFF's JSON description, the napari
+    writer as ``role``. Such a file is a result, not a light field.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from napari_lfalias import io_write
+    >>> path = io_write.write_tiff(os.path.join(tempfile.mkdtemp(), "cv.tif"), np.zeros((4, 4), np.float32),
+    ...                            {"content": "cv"})
+    >>> output_image_kind(path)
+    'cv'
+    """
+    import tifffile
+
+    from ._napari._writer import OUTPUT_FORMAT
+
+    path = Path(path)
+    if path.suffix.lower() not in (".tif", ".tiff") or not path.is_file():
+        return None
+    try:
+        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
+            header = tif.shaped_metadata[0] if tif.shaped_metadata else None
+    except Exception:  # noqa: BLE001 - an unreadable TIFF is not ours; its reader names the damage
+        return None
+    if not isinstance(header, dict):
+        return None
+    kind = header.get("role") if header.get("format") == OUTPUT_FORMAT else header.get("content")
+    return kind if isinstance(kind, str) else None
 
 
 # -- the header -------------------------------------------------------------------------------------

@@ -74,7 +74,7 @@ def load(path, **options):
     >>> lfa.load(path).shape
     (3, 3, 8, 8, 1)
     """
-    from .io_read import is_lightfield_file, is_zarr_store
+    from .io_read import is_lightfield_file, is_zarr_store, output_image_kind
 
     path = Path(path)
     if not path.exists():
@@ -90,6 +90,12 @@ def load(path, **options):
         from .decoders.camera_array import load_camera_array
 
         return load_camera_array(path, **options)
+    kind = output_image_kind(path)
+    if kind is not None:
+        raise DecodeError(
+            f"{path}: a result written by napari-lfalias ({kind!r}, one image), not a light field: read it with "
+            "tifffile.imread, or open it in napari; load the light field it was computed from"
+        )
     from .decoders.lenslet import load_lenslet
 
     try:

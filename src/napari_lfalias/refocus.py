@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _validate
+from ._numerics import unit_scale
 from .errors import ParameterError
 from .lightfield import LightField
 
@@ -225,6 +226,15 @@ def refocus(lf, slope):
     True
     """
     lf, slope = _shift_args(lf, slope)
+    image = _weighted_mean(lf, slope)
+    if not np.isfinite(image).all():  # float32 sums of values near its maximum overflowed
+        scale = unit_scale(float(np.abs(lf.data).max()))
+        scaled = LightField._derived(lf.data * np.float32(scale), lf.positions, lf.meta, lf.weights)
+        image = _weighted_mean(scaled, slope) / np.float32(scale)
+    return image
+
+
+def _weighted_mean(lf, slope):
     num = np.empty(lf.image_shape + (lf.n_channels,), np.float32)
     den = np.empty(lf.image_shape, np.float32)
     _run("refocus_sum", *_inputs(lf, slope), np.ones(lf.n_views), num, den)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import io_write
+from .. import io_read, io_write
 from .._inputs import open_input
 from ..errors import DecodeError
 
@@ -15,9 +15,19 @@ __all__ = ["run_info", "describe"]
 
 
 def _image_facts(path):
-    """Shape and dtype of a plain image file, without decoding it as a light field."""
+    """Shape and dtype of a plain image file, without decoding it as a light field.
+
+    A view-image file is decoded (within the memory budget), so that a
+    truncated or damaged one is named here rather than described.
+    """
     import imageio.v3 as iio
 
+    from ..decoders.images import decode_image, is_image_file
+
+    if is_image_file(path):
+        pixels = decode_image(path)
+        shape = pixels.shape if pixels.shape[-1] == 3 else pixels.shape[:2]
+        return {"image_shape": list(shape), "dtype": str(pixels.dtype)}
     try:
         props = iio.improps(path)
     except Exception as exc:  # noqa: BLE001 - imageio raises many kinds for unreadable files
@@ -53,6 +63,10 @@ def describe(path, white=None, dark=None, grid=None, nonfinite=None):
         facts["format"] = f"{io_write.FORMAT_NAME} ({'zarr store' if path.suffix.lower() == '.zarr' else 'ImageJ TIFF'})"
     elif path.is_dir():
         facts["format"] = "folder of views (camera array)"
+    elif (kind := io_read.output_image_kind(path)) is not None:
+        facts["format"] = f"napari-lfalias result ({kind!r}, one image), not a light field"
+        facts.update(_image_facts(path))
+        return facts
     elif white is None and grid is None:
         facts["format"] = "image file (a lenslet capture needs --white to decode)"
         facts.update(_image_facts(path))

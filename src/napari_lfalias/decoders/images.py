@@ -113,7 +113,9 @@ def _pillow_header(path):
 def _read_tiff(path):
     import tifffile
 
-    with tifffile.TiffFile(path) as tif:
+    from ..io_read import _quiet_tifffile
+
+    with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
         page = tif.pages[0]
         _check_decoded_size(path, page.shape, page.dtype.itemsize if page.dtype is not None else 8)
         array = page.asarray()
@@ -270,7 +272,9 @@ def image_header(path):
         if path.suffix.lower() in _TIFF_SUFFIXES:
             import tifffile
 
-            with tifffile.TiffFile(path) as tif:
+            from ..io_read import _quiet_tifffile
+
+            with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
                 page = tif.pages[0]
                 shape = dict(zip(page.axes, page.shape))
             samples = shape.get("S", 1)

@@ -222,3 +222,21 @@ def test_the_disparity_estimate_reads_the_central_views_of_a_large_array():
     data[outer] = np.random.default_rng(0).random(data[outer].shape)  # the outer views disagree with everything
     low, high = estimate_slope_range(lfa.LightField(data, lf.positions))
     assert low == pytest.approx(1.0) and high == pytest.approx(1.0)
+
+
+def test_a_monte_carlo_cv_that_would_take_hours_is_refused_naming_n_patterns():
+    lf = brick_room(n_views=4, size=32, seed=0).lightfield
+    with pytest.raises(ParameterError, match=r"n_patterns=1000000000000: .*sample visits.*method='analytic'"):
+        lfa.detect_aliasing(lf, 2.0, method="monte_carlo", n_patterns=10**12, threshold=0.01)
+
+
+@pytest.mark.parametrize("peak", [1e-30, 3e37])
+def test_the_default_reduction_does_not_depend_on_the_scale_of_the_data(peak):
+    """The dense-aperture renderer sums in float32: extreme data are rendered at a power-of-two scale."""
+    lf = brick_room(n_views=4, size=48, seed=0).lightfield
+    reference = lfa.reduce_aliasing(lf, 2.0)
+    factor = peak / float(lf.data.max())
+    scaled = lfa.LightField((lf.data.astype(np.float64) * factor).astype(np.float32), lf.positions, lf.meta)
+    found = lfa.reduce_aliasing(scaled, 2.0)
+    np.testing.assert_array_equal(found.detections[0].mask, reference.detections[0].mask)
+    np.testing.assert_allclose(found.image / factor, reference.image, rtol=1e-5, atol=1e-6)

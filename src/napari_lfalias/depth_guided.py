@@ -32,6 +32,8 @@ so that a new threshold or a reduction after a detection costs nothing.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy import ndimage
 
@@ -94,7 +96,7 @@ class DepthGuide:
     def __init__(self, lf, disparity=None, nearer="auto"):
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
-        self.lf = lf.compute() if lf.is_lazy else lf
+        self.lf, self._unit = _unit_scaled(lf.compute() if lf.is_lazy else lf)
         self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
         self._given = disparity
         self._estimate = None
@@ -150,8 +152,11 @@ class DepthGuide:
             rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
             disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
             confidence = np.where(in_focus, np.float32(1), confidence)
-            self._rendering = render_dense_aperture(self.lf, rendered_slope, disparity, confidence,
-                                                    larger_first=self.larger_first)
+            rendering = render_dense_aperture(self.lf, rendered_slope, disparity, confidence,
+                                              larger_first=self.larger_first)
+            if self._unit != 1.0:
+                rendering = replace(rendering, image=rendering.image / np.float32(self._unit))
+            self._rendering = rendering
         return self._rendering
 
     @property
@@ -201,3 +206,19 @@ class DepthGuide:
             return naive.copy()
         weight = self.blend_weight(mask)
         return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)
+
+
+#: Data peaks within which the renderer's float32 sums neither overflow nor lose the data to underflow.
+_SAFE_PEAKS = (2.0**-60, 2.0**60)
+
+
+def _unit_scaled(lf):
+    """``lf`` and 1, or, for data beyond :data:`_SAFE_PEAKS`, a copy times a power of two and that power."""
+    from ._numerics import unit_scale
+
+    peak = float(np.abs(lf.data).max(initial=0.0))
+    if _SAFE_PEAKS[0] <= peak <= _SAFE_PEAKS[1] or not peak:
+        return lf, 1.0
+    unit = unit_scale(peak)
+    scaled = LightField(lf.data * np.float32(unit), lf.positions, lf.meta, weights=lf.weights)
+    return scaled, unit

@@ -238,6 +238,53 @@ def test_a_white_mosaic_demosaics_to_white_up_to_the_lens_rims():
 
 
 @pytest.mark.parametrize("kind", ["rectangular", "hexagonal"])
+def test_the_demosaicing_takes_no_colour_from_the_neighbouring_lens(kind):
+    """Every lens of a mosaic sees one colour of its own (random, lens by lens): demosaiced with the grid, every
+    lit pixel has exactly its lens's colour, rim pixels included (2 px from the sensor's edge: a lens cut by it
+    may hold no pixel of a colour within reach); OpenCV's demosaicing, which knows no lenses, blends the
+    neighbours' colours into the pixels next to a rim."""
+    from napari_lfalias.decoders.bayer import demosaic16, mosaic
+    from napari_lfalias.decoders.lens_demosaicing import demosaic_in_lenses
+    from napari_lfalias.synthetic.lenslet import _lens_of_pixels, _true_grid
+
+    grid = _true_grid((150, 170), 12.41, 0.9, kind, None)
+    height, width = grid.image_shape
+    pixels = np.stack(np.meshgrid(np.arange(height, dtype=float), np.arange(width, dtype=float), indexing="ij"),
+                      axis=-1).reshape(-1, 2)
+    rows, cols, q = _lens_of_pixels(grid, pixels)
+    colours = np.random.default_rng(3).uniform(0.1, 0.9, (int(rows.max()) + 2, int(cols.max()) + 4, 3))
+    rgb = colours[rows.astype(int), cols.astype(int) + 1].reshape(height, width, 3).astype(np.float32)
+    valid = (np.hypot(*q) < 0.5 * grid.pitch).reshape(height, width).astype(np.float32)  # the gaps are dropped
+    raw = mosaic(rgb, "GRBG") * valid
+    lit = valid > 0
+    lit[:2], lit[-2:], lit[:, :2], lit[:, -2:] = False, False, False, False  # lenses cut by the sensor's edge
+    image, step = demosaic_in_lenses(raw, valid, "GRBG", grid)
+    assert np.abs(image[lit] * step - rgb[lit]).max() < 1e-4
+    general, step = demosaic16(raw, "GRBG")
+    assert np.abs(general[lit] * step - rgb[lit]).max() > 0.3
+
+
+def test_a_pixel_with_no_lit_neighbour_of_a_colour_takes_it_from_two_pixels_away_or_keeps_its_own_value():
+    """At a lens's corner the 3 x 3 neighbourhood may hold no lit pixel of a colour: the 5 x 5 one gives it; a
+    pixel with none there either (alone in its lens) is grey at its own value. Dropped pixels are 0."""
+    from napari_lfalias.decoders.grid import GridModel
+    from napari_lfalias.decoders.lens_demosaicing import demosaic_in_lenses
+
+    grid = GridModel("rectangular", 10.0, 0.0, (4.5, 4.5), 1, 1, (10, 10))
+    raw = np.full((10, 10), 0.5, np.float32)  # GRBG: green 0.5, red 0.8, blue 0.3
+    raw[0::2, 1::2] = 0.8
+    raw[1::2, 0::2] = 0.3
+    valid = np.zeros((10, 10), np.float32)
+    valid[4, 4] = valid[2, 3] = valid[5, 2] = 1.0  # a green, a red two rows up, a blue two columns left
+    valid[9, 9] = 1.0  # a green alone
+    image, step = demosaic_in_lenses(raw, valid, "GRBG", grid)
+    colour = image * step
+    np.testing.assert_allclose(colour[4, 4], [0.8, 0.5, 0.3], atol=1e-4)
+    np.testing.assert_allclose(colour[9, 9], [0.5, 0.5, 0.5], atol=1e-4)
+    assert not colour[valid == 0].any()
+
+
+@pytest.mark.parametrize("kind", ["rectangular", "hexagonal"])
 def test_rim_views_of_a_bayer_capture_keep_their_brightness(scene, kind):
     """Every view seen with weight >= 0.5 over half the picture, rim views included, matches the truth's
     mean colour within 4 % (zeros in the gaps made the diagonal views of a rectangular grid 13 % dark in red and

@@ -95,10 +95,13 @@ def test_the_users_arrays_are_not_modified(hex_capture):
         np.testing.assert_array_equal(before, after)
 
 
-def test_a_vertical_hexagonal_grid_decodes_to_the_transposed_views(scene):
-    capture = render_lenslet(scene, shape=(260, 260), pitch=12.7, rotation=0.3, kind="hexagonal", seed=4)
-    upright = decode_lenslet(capture.raw, capture.white, trim=False)
-    turned = decode_lenslet(capture.raw.T.copy(), capture.white.T.copy(), trim=False)
+@pytest.mark.parametrize("bayer, turned_bayer", [(None, None), ("GRBG", "GBRG")])
+def test_a_vertical_hexagonal_grid_decodes_to_the_transposed_views(scene, bayer, turned_bayer):
+    """A transposed mosaic (GRBG read column by column is GBRG) is demosaiced in the same lenses too."""
+    capture = render_lenslet(scene, shape=(260, 260), pitch=12.7, rotation=0.3, kind="hexagonal", seed=4,
+                             bayer=bayer)
+    upright = decode_lenslet(capture.raw, capture.white, trim=False, bayer=bayer)
+    turned = decode_lenslet(capture.raw.T.copy(), capture.white.T.copy(), trim=False, bayer=turned_bayer)
     assert turned.meta["grid"].transposed and not upright.meta["grid"].transposed
     expected = upright.data.transpose(1, 0, 3, 2, 4)
     assert turned.shape == expected.shape

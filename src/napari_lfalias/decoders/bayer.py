@@ -3,7 +3,8 @@
 Demosaicing uses OpenCV's edge-aware method (``COLOR_Bayer*2RGB_EA``) on
 16-bit data. The lenslet decoder divides the mosaic by the white mosaic
 first (as LFToolbox does), so the demosaicing sees a devignetted image
-without the dark rims between microlenses.
+without the dark rims between microlenses, and demosaics lens by lens
+(:mod:`.lens_demosaicing`) where it knows the microlens grid.
 """
 
 from __future__ import annotations

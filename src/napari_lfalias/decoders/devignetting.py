@@ -4,10 +4,12 @@
 the fall-off under every microlens; the white image relative to its bright
 level is each sample's validity (weight), and pixels below ``min_weight``
 are dropped. A Bayer mosaic is divided channel by channel and demosaiced
-afterwards (OpenCV edge-aware), so the lens rims do not leak colour into
-the views. Before the demosaicing, every dropped pixel of the mosaic takes
-the validity-weighted mean of its lit neighbours of the same colour (two
-pixels away): the demosaicing interpolates each colour from up to two
+afterwards, so the lens rims do not leak colour into the views. With the
+microlens grid (as the decoder has it) the demosaicing stays inside each
+lens and uses lit pixels only (:mod:`.lens_demosaicing`). Without it,
+OpenCV's edge-aware method is used, and every dropped pixel of the mosaic
+first takes the validity-weighted mean of its lit neighbours of the same
+colour (two pixels away): that demosaicing interpolates each colour from
 pixels around, and zeros in the gaps between microlenses would darken the
 views at the lens rims (by up to 13 % in the red and blue of a rectangular
 grid's diagonal views). The dropped pixels keep weight 0.
@@ -260,8 +262,12 @@ def _clamp_channels(image, limits):
                     image[y, x, c] = limits[c]
 
 
-def divide_by_white(raw, white=None, dark=None, min_weight=0.05, saturation="auto"):
+def divide_by_white(raw, white=None, dark=None, min_weight=0.05, saturation="auto", grid=None):
     """:func:`devignette`, with a demosaiced Bayer image kept in 16 bits: ``(image, valid, scale)``.
+
+    With the capture's microlens ``grid`` a Bayer mosaic is demosaiced lens
+    by lens (:func:`.lens_demosaicing.demosaic_in_lenses`: no colour from
+    the neighbouring lens); without it, by OpenCV.
 
     ``image * scale`` is the ratio; ``image`` is float32 (``scale`` 1) for
     grey and colour captures, and the 16-bit output of the demosaicing for
@@ -269,6 +275,7 @@ def divide_by_white(raw, white=None, dark=None, min_weight=0.05, saturation="aut
     pass fewer; the slicing reads it as it is).
     """
     from .bayer import channel_index, demosaic16
+    from .lens_demosaicing import demosaic_in_lenses
 
     check_frames(raw, white, dark)
     signal = _frame(raw)
@@ -309,9 +316,13 @@ def divide_by_white(raw, white=None, dark=None, min_weight=0.05, saturation="aut
         )
     scale = 1.0
     if mosaic:
-        if white is not None:
-            _fill_dropped(ratio[..., 0], valid)  # before clipped samples' weights are lowered: still lit
-        image, scale = demosaic16(ratio[..., 0], raw.bayer, float(row_max.max()))
+        # both before clipped samples' weights are lowered: they are lit
+        if grid is not None:
+            image, scale = demosaic_in_lenses(ratio[..., 0], valid, raw.bayer, grid, float(row_max.max()))
+        else:
+            if white is not None:
+                _fill_dropped(ratio[..., 0], valid)
+            image, scale = demosaic16(ratio[..., 0], raw.bayer, float(row_max.max()))
         del ratio
         if clip is not None:  # the demosaicing may overshoot the ceiling
             _clamp_channels(image, np.floor(ceiling / scale + 0.5).astype(np.float64))

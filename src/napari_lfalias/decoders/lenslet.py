@@ -12,8 +12,9 @@ with one resampling instead of its three:
    saturated light so that every view agrees on it (:mod:`.devignetting`);
    the white image, relative to its bright level, is each pixel's validity
    weight, and pixels below ``min_weight`` are dropped; a Bayer mosaic is
-   demosaiced after this division, so the lens rims do not leak colour into
-   the views;
+   demosaiced after this division, lens by lens with the grid
+   (:mod:`.lens_demosaicing`), so neither the lens rims nor the neighbouring
+   lens leak colour into the views;
 4. slice (:mod:`.slicing`): every microlens is a pixel of every view, every
    pixel under a microlens a view, rotation removed and hexagonal rows
    resampled to square pixels in the same interpolation; only the output
@@ -186,7 +187,7 @@ def decode_steps(raw, white=None, dark=None, grid=None, *, bayer=None, n_views=N
         model = calibrate(white_image, dark_image, **options)
     yield done, total, "dividing by the white image"
     done += 1
-    image, valid, scale = divide_by_white(raw_image, white_image, dark_image, min_weight, saturation)
+    image, valid, scale = divide_by_white(raw_image, white_image, dark_image, min_weight, saturation, model)
     count = _view_count(model, n_views, outside)
     q = np.arange(count) - (count - 1) / 2.0
     view_on = np.hypot(q[:, None], q[None, :]) <= model.pitch / 2.0

@@ -224,3 +224,20 @@ def test_the_default_method_is_depth(room):
     np.testing.assert_array_equal(detection.cv, detector.detect(4.0, method="depth").cv)
     reduced = lfa.reduce_aliasing(room, 4.0, detector=detector)
     assert [d.params["method"] for d in reduced.detections] == ["depth"]
+
+
+def test_an_occluder_outline_a_pixel_off_does_not_make_the_in_focus_background_worse():
+    """Stripes (disparity 3) before tiles (-4), 4x4 views, focused on the tiles: near the defocused stripes'
+    outline the right blur depends on where the outline is. Scored without the edge tolerance
+    (``EDGE_TOLERANCE_PX = 0``), the default reduction was 0.5 dB below the naive refocus overall and 0.7 dB
+    on its clean pixels."""
+    scene = layered_scene([(3.0, "stripes", (0.25, 0.75, 0.25, 0.75)), (-4.0, "tiles", None)],
+                          n_views=4, size=96, seed=3)
+    slope = -4.0
+    naive = lfa.refocus(scene.lightfield, slope)
+    reference = scene.reference(slope, interpolation="bilinear")
+    clean = ~metrics.aliased_pixels(naive, reference)
+    image = lfa.reduce_aliasing(scene.lightfield, slope).image
+    for region in (None, clean):
+        gain = metrics.psnr(image, reference, mask=region) - metrics.psnr(naive, reference, mask=region)
+        assert gain >= -0.1, ("overall" if region is None else "clean pixels", gain)

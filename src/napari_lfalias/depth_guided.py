@@ -113,9 +113,7 @@ class DepthGuide:
         self._estimate = None
         self._larger_first = None
         self._slope = None
-        self._rendering = None
-        self._edge_images = None
-        self._moments = None
+        self._at_slope = {}  # what was made for self._slope, by name
         self._focus_test = None
 
     @property
@@ -147,34 +145,35 @@ class DepthGuide:
 
     def _keep(self, slope):
         if self._slope != slope:
-            self._slope, self._rendering, self._moments, self._edge_images = slope, None, None, None
+            self._slope, self._at_slope = slope, {}
+
+    def _kept(self, slope, name, make):
+        """``make()`` for ``slope``, made once: what is kept is for the last slope only."""
+        self._keep(slope)
+        if name not in self._at_slope:
+            self._at_slope[name] = make()
+        return self._at_slope[name]
 
     def rendering(self, slope):
         """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
         slope = _validate.finite_float("slope", slope)
-        self._keep(slope)
-        if self._rendering is None:
-            self._rendering = self._render(slope, self.estimate[0])
-        return self._rendering
+        return self._kept(slope, "rendering", lambda: self._render(slope, self.estimate[0]))
 
     def edge_renderings(self, slope):
         """The rendered images at ``slope`` with the disparity's edges moved :data:`EDGE_TOLERANCE_PX`
         outwards and inwards (the larger disparities grown, then shrunk); kept per slope."""
         slope = _validate.finite_float("slope", slope)
-        self._keep(slope)
-        if self._edge_images is None:
-            disparity = self.estimate[0]
-            size = 2 * EDGE_TOLERANCE_PX + 1
-            self._edge_images = [self._render(slope, moved(disparity, size=(size, size))).image
-                                 for moved in (ndimage.grey_dilation, ndimage.grey_erosion)]
-        return self._edge_images
+        size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
+        return self._kept(slope, "edge renderings", lambda: [
+            self._render(slope, moved(self.estimate[0], size=size)).image
+            for moved in (ndimage.grey_dilation, ndimage.grey_erosion)])
 
     def _render(self, slope, disparity):
         from ._kernels import MAX_SHIFT
         from .render import render_dense_aperture
 
         # the surfaces the views show in focus are in focus, whatever the estimate says
-        in_focus = self.focus_test(slope)
+        in_focus = self._kept(slope, "in focus", lambda: self.focus_test(slope))
         # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
         rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
         disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
@@ -198,13 +197,13 @@ class DepthGuide:
         """The angular coefficient of variation of the views' luminance at ``slope``, ``(Y, X)``."""
         from .refocus import view_moments
 
-        self._keep(slope)
-        if self._moments is None:
+        def make():
             moments = view_moments(self.lf.luminance(), slope)
             mean = moments.mean[..., 0]
             floor = max(DARK_FLOOR * float(mean.max(initial=0.0)), float(np.finfo(np.float32).tiny))
-            self._moments = np.sqrt(np.maximum(moments.variance[..., 0], 0)) / np.maximum(mean, floor)
-        return self._moments
+            return np.sqrt(np.maximum(moments.variance[..., 0], 0)) / np.maximum(mean, floor)
+
+        return self._kept(slope, "angular cv", make)
 
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its
@@ -245,7 +244,7 @@ def _unit_scaled(lf):
     """``lf`` and 1, or, for data beyond :data:`_SAFE_PEAKS`, a copy times a power of two and that power."""
     from ._numerics import unit_scale
 
-    peak = float(np.abs(lf.data).max(initial=0.0))
+    peak = max(float(lf.data.max(initial=0.0)), -float(lf.data.min(initial=0.0)))  # no |data| copy
     if _SAFE_PEAKS[0] <= peak <= _SAFE_PEAKS[1] or not peak:
         return lf, 1.0
     unit = unit_scale(peak)

@@ -203,20 +203,16 @@ def _bright_level(values, valid=None, samples=1 << 20):
 def _features(lum):
     """Planes ``(n, 3, Y, X)`` float32: luminance and its central-difference gradients (weighted)."""
     n, height, width = lum.shape
-    out = np.empty((n, 3, height, width), np.float32)
+    out = np.zeros((n, 3, height, width), np.float32)
     out[:, 0] = lum
     weight = np.float32(GRADIENT_WEIGHT / 2.0)
-    for axis, plane in ((1, out[:, 1]), (2, out[:, 2])):  # in place: the stack is large
-        inner = [slice(None)] * 3
-        inner[axis] = slice(1, -1)
-        edges = [slice(None)] * 3
-        edges[axis] = [0, -1]
-        plane[tuple(edges)] = 0
-        if lum.shape[axis] > 2:
-            ahead, behind = list(inner), list(inner)
-            ahead[axis], behind[axis] = slice(2, None), slice(None, -2)
-            np.subtract(lum[tuple(ahead)], lum[tuple(behind)], out=plane[tuple(inner)])
-            plane[tuple(inner)] *= weight
+    # differences written in place: the stack is large
+    if height > 2:
+        np.subtract(lum[:, 2:], lum[:, :-2], out=out[:, 1, 1:-1])
+        out[:, 1, 1:-1] *= weight
+    if width > 2:
+        np.subtract(lum[:, :, 2:], lum[:, :, :-2], out=out[:, 2, :, 1:-1])
+        out[:, 2, :, 1:-1] *= weight
     return out
 
 

@@ -417,7 +417,7 @@ def section_illum(cache, repeats):
         start = time.perf_counter()
         grid = calibrate(white)
         cals.append(time.perf_counter() - start)
-        lf = decode_lenslet(raw, white, grid=grid, progress=lambda d, t, s: marks.append((time.perf_counter(), s)))
+        decode_lenslet(raw, white, grid=grid, progress=lambda d, t, s: marks.append((time.perf_counter(), s)))
         walls.append(time.perf_counter() - start)
         steps.append(marks)
         print(f"illum: calibrate {cals[-1]:.2f} s, calibrate + decode {walls[-1]:.2f} s, load {os.getloadavg()[0]:.2f}",

@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import metrics
@@ -72,6 +73,28 @@ def test_with_the_true_disparity_the_rendering_keeps_the_clean_pixels(make, slop
     # the goal: at most 0.3 dB below naive on the pixels that were not aliased
     assert metrics.psnr(rendering, reference, mask=clean) >= metrics.psnr(naive, reference, mask=clean) - 0.3
     assert metrics.psnr(rendering, reference) >= metrics.psnr(naive, reference)
+
+
+@pytest.mark.parametrize("occluder, background, slope, n_views, before", [
+    # measured around the outline: rendering 60.3 dB, naive 56.6; 49.1 when hidden background was left out
+    ((1.0, "tiles"), (-4.0, "flat"), 4.0, 4, 49.1),
+    # measured: rendering 66.0 dB, naive 62.1; 61.2 before
+    ((2.0, "noise"), (-3.0, "smooth"), 0.0, 5, 61.2),
+], ids=["tiles over a flat wall", "noise over a smooth wall"])
+def test_a_defocused_occluder_over_a_more_defocused_background_has_no_halo(occluder, background, slope, n_views,
+                                                                           before):
+    # Beside an occluder's outline the background's blur reaches under the occluder, where no view of
+    # that side sees it; left out, the occluder's colour filled the gap (a halo, as along HCI's statue).
+    scene = layered_scene([(*occluder, (0.3, 0.7, 0.3, 0.7)), (*background, None)], n_views=n_views, size=96,
+                          seed=3)
+    lf = as_user_has_it(scene.lightfield)
+    rendering = lfa.antialiased_refocus(lf, slope, scene.disparity)
+    naive = lfa.refocus(lf, slope)
+    reference = scene.reference(slope, interpolation="exact")
+    inside = scene.disparity == occluder[0]
+    outline = ndimage.binary_dilation(inside, iterations=8) & ~ndimage.binary_erosion(inside, iterations=8)
+    assert metrics.psnr(rendering, reference, mask=outline) >= metrics.psnr(naive, reference, mask=outline)
+    assert metrics.psnr(rendering, reference, mask=outline) >= before + 3.0
 
 
 # -- in focus ----------------------------------------------------------------------------------------

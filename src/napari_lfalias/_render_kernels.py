@@ -154,8 +154,13 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     surface, add up instead of hiding each other. What no bin covers of the
     view's cell (a surface this view does not see behind an occluder's
     blurred edge) is the in-focus surface the other views see there,
-    ``fill``, where ``has_fill``. Layers hold unit coverage; the view's
-    cell at a pixel counts by the weight of the view's sample there.
+    ``fill``, where ``has_fill``. Where a clearly nearer bin hides a
+    blurred bin in this view, the hidden surface goes on behind it with
+    the colour of what is seen of it nearby: its blur reaches under the
+    occluder, which is what the rays between the views see there (left out,
+    the occluder's colour took the gap: a halo along its outline). Layers
+    hold unit coverage; the view's cell at a pixel counts by the weight of
+    the view's sample there.
 
     ``covers (K, Y, X)`` and ``seen (Y, X)`` are scratch: each bin's
     blurred coverage (within its reach), and the share of the cell the bins
@@ -165,6 +170,9 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
     boxes = _bin_boxes(bins, weights, taps.shape[0])
+    rank = np.empty(n_order, np.int64)  # each bin's position in order
+    for o in range(n_order):
+        rank[order[o]] = o
     reach = np.full((n_order, 4), -1, np.int64)  # each bin's blurred extent y0, y1, x0, x1 (exclusive ends)
     seen[:] = 1.0
     lagged = -1  # seen holds the bins order[:lagged + 1]
@@ -186,7 +194,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
         x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
         reach[o, 0], reach[o, 1], reach[o, 2], reach[o, 3] = y0, y1, x0, x1
-        layer = np.zeros((y1 - y0, x1 - x0, n_ch + 2), np.float32)
+        layer = np.zeros((y1 - y0, x1 - x0, n_ch + 3), np.float32)
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
                 if bins[y, x] == k and weights[y, x] > 0.0:
@@ -194,6 +202,13 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                         layer[y - y0, x - x0, c] = values[y, x, c]
                     layer[y - y0, x - x0, n_ch] = 1.0
                     layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
+        hides = blur and occluders[o] >= 0
+        if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    b = bins[y, x]
+                    if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
+                        layer[y - y0, x - x0, n_ch + 2] = 1.0
         if blur:
             summed = np.empty_like(layer)
             box_image(layer, int(ny), fy, int(nx), fx, summed)
@@ -202,18 +217,22 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         for y in range(y0, y1):
             for x in range(x0, x1):
                 cell = layer[y - y0, x - x0]
-                cover = min(cell[n_ch], 1.0)
+                visible = cell[n_ch]
+                # what the nearer bins hide of this surface has the colour of what is seen of it nearby
+                scale = (visible + cell[n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
+                cover = min(visible * scale, 1.0)
                 covers[o, y, x] = cover
                 if cover <= 0.0:
                     continue
                 t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]  # the cell counts by its weight
                 if t <= 0.0:
                     continue
+                t *= scale
                 for c in range(n_ch):
                     num[y, x, c] += t * cell[c]
-                den[y, x] += t * cell[n_ch]
+                den[y, x] += t * visible
                 if blur:
-                    blurred[y, x] += t * cell[n_ch]
+                    blurred[y, x] += t * visible
                 trust[y, x] += t * cell[n_ch + 1]
     while lagged < n_order - 1:  # what every bin leaves free
         lagged += 1

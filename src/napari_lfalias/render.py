@@ -23,6 +23,8 @@ when not given):
    occluder spreads over the in-focus surface it partly hides, and hides
    it in proportion. Only clearly nearer bins hide (their blur widths
    differ by :data:`OCCLUSION_GAP_PX` or more); bins of one surface add up.
+   A blurred surface goes on behind what hides it, with the colour of what
+   is seen of it nearby, so its blur reaches under an occluder's outline.
 4. The views' composites are summed and normalised by their coverage.
 
 Pixels in focus (``|d - slope| * spacing < 0.5`` px) with no defocused

@@ -8,6 +8,7 @@ from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import _inputs, metrics, presets
+from napari_lfalias.depth_guided import THRESHOLD, DepthGuide, predicted_error, with_local_mean_of
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import reduction_options
 from napari_lfalias.synthetic import brick_room, layered_scene, textureless_plane
@@ -45,14 +46,11 @@ def test_a_light_field_without_texture_comes_back_as_the_naive_refocus():
         assert not detector.detect(slope).mask.any()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "a smooth texture out of focus (layered_scene([(d, 'smooth', None)], 5x5, 64 px, seed 0), no pixel aliased "
-    "by the ground truth) has pixels replaced at the default: d=2, slope 0: 2 pixels (rows 0-1), image changed "
-    "by up to 0.006, PSNR 78.2 -> 76.4 dB; d=-1.5, slope 1.5: 27 pixels (rows 0-7), changed by up to 0.015. "
-    "The rendering with the estimated disparity (off by 0.03-0.05 px near the border) differs from the naive "
-    "refocus there by more than T, and is no closer to the dense reference"))
 @pytest.mark.parametrize("disparity, slope", [(2.0, 0.0), (-1.5, 1.5)])
 def test_a_smooth_texture_out_of_focus_comes_back_as_the_naive_refocus(disparity, slope):
+    # The estimate is off by 0.03-0.05 px near the border, and the rendering there differed from the naive
+    # refocus by more than T (2 and 27 pixels replaced, PSNR 78.2 -> 76.4 dB) until the detection asked the
+    # rendering for the naive refocus's local mean (CONSISTENCY_PERIODS).
     scene = layered_scene([(disparity, "smooth", None)], n_views=5, size=SIZE, seed=0)
     lf = as_user_has_it(scene.lightfield)
     naive = lfa.refocus(lf, slope)
@@ -68,7 +66,7 @@ def room():
     return as_user_has_it(brick_room(n_views=4, size=SIZE, seed=0).lightfield)
 
 
-@pytest.mark.parametrize("slope", [4.0, -4.0, 0.0])
+@pytest.mark.parametrize("slope", [4.0, -4.0, 2.0])
 def test_the_pixels_the_default_reduction_keeps_are_the_naive_refocus_exactly(room, slope):
     result = lfa.reduce_aliasing(room, slope)
     kept = result.level == 0
@@ -76,7 +74,7 @@ def test_the_pixels_the_default_reduction_keeps_are_the_naive_refocus_exactly(ro
     np.testing.assert_array_equal(result.image[kept], lfa.refocus(room, slope)[kept])
 
 
-@pytest.mark.parametrize("slope", [4.0, -4.0, 0.0])
+@pytest.mark.parametrize("slope", [4.0, -4.0, 2.0])
 def test_beyond_the_soft_edge_the_default_reduction_is_the_naive_refocus_exactly(room, slope):
     result = lfa.reduce_aliasing(room, slope)
     naive = lfa.refocus(room, slope)
@@ -241,3 +239,31 @@ def test_an_occluder_outline_a_pixel_off_does_not_make_the_in_focus_background_w
     for region in (None, clean):
         gain = metrics.psnr(image, reference, mask=region) - metrics.psnr(naive, reference, mask=region)
         assert gain >= -0.1, ("overall" if region is None else "clean pixels", gain)
+
+
+def test_a_rendering_wrong_along_an_outline_does_not_flag_clean_pixels():
+    # A smooth occluder over a flat wall, both out of focus: nothing aliased. Told the wrong occlusion order,
+    # the renderer spreads the wall over the occluder's outline; that difference from the naive refocus has
+    # a local mean the naive refocus does not have, so it is not aliasing (measured: 78 pixels flagged
+    # without the local-mean check, 0 with it).
+    scene = layered_scene([(0.0, "smooth", (0.3, 0.7, 0.3, 0.7)), (7.0, "flat", None)], n_views=3, size=96, seed=3)
+    lf = as_user_has_it(scene.lightfield)
+    slope = -3.0
+    naive = lfa.refocus(lf, slope)
+    assert not metrics.aliased_pixels(naive, scene.reference(slope)).any()
+    guide = DepthGuide(lf, scene.disparity, nearer="larger")  # the wall in front: wrong
+    assert (predicted_error(naive, guide.rendering(slope).image) > THRESHOLD).sum() >= 20  # the rendering is wrong
+    assert not (guide.scores(slope, naive) > THRESHOLD).any()
+
+
+def test_with_local_mean_of_keeps_what_differs_within_the_window():
+    rng = np.random.default_rng(0)
+    naive = rng.random((40, 50, 3), np.float32)
+    image = naive + 0.2 + 0.1 * rng.standard_normal(naive.shape).astype(np.float32)  # brighter, and noisy
+    windows = np.full((40, 50), 9)
+    windows[:, :10] = 1  # left as it is
+    out = with_local_mean_of(naive, image, windows)
+    np.testing.assert_array_equal(out[:, :10], image[:, :10])
+    right = (slice(None), slice(10, None))
+    assert abs(float(np.mean((out - naive)[right]))) < 0.01  # the offset of 0.2 is gone ...
+    np.testing.assert_allclose(np.std((out - naive)[right]), np.std((image - naive)[right]), rtol=0.15)  # ... not the noise

@@ -28,6 +28,14 @@ sparse refocus and what a dense aperture would record.
   rendering *and* from the renderings with the edges moved
   :data:`EDGE_TOLERANCE_PX` either way (chosen on the benchmark's tuning
   cases as the least that left none of them below the naive refocus).
+  The naive refocus and a dense aperture record the same light through
+  the same aperture and differ only in how they sample it, so their local
+  means over a few ghost spacings (``|d - slope|`` times the view
+  spacing) agree; a rendering whose local mean does not is wrong there (a
+  misplaced depth edge, a surface the estimate misses), and its
+  difference from the naive refocus is not aliasing. The rendering is
+  compared with its local mean over :data:`CONSISTENCY_PERIODS` ghost
+  spacings brought to the naive refocus's.
 - **Reduction.** Those pixels take the rendering, with a soft edge; every
   other pixel keeps the naive refocus exactly. A light field with nothing
   aliased comes back unchanged.
@@ -47,7 +55,7 @@ from . import _validate
 from .errors import ParameterError
 from .lightfield import LightField
 
-__all__ = ["DepthGuide", "predicted_error", "MIN_ANGULAR_CV", "THRESHOLD"]
+__all__ = ["DepthGuide", "predicted_error", "with_local_mean_of", "MIN_ANGULAR_CV", "THRESHOLD"]
 
 #: Default threshold: the relative luminance difference a viewer perceives (the paper's T).
 THRESHOLD = 0.02
@@ -62,6 +70,10 @@ MIN_TRUST = 0.05
 #: edges moved this far either way: near a defocused occluder's outline the right blur depends on
 #: where the outline is, and an edge a pixel or two off must not make a correct naive pixel look aliased.
 EDGE_TOLERANCE_PX = 2
+#: The window, in ghost spacings, over which a rendering must have the naive refocus's local mean: the
+#: detection compares the naive refocus with the rendering after making it so (module notes). One
+#: spacing is a whole period of the ghosts; two keep the mean clear of the rounding of the window.
+CONSISTENCY_PERIODS = 2
 
 
 def predicted_error(naive, rendered):
@@ -210,13 +222,22 @@ class DepthGuide:
         :meth:`edge_renderings`), set to 0 where the views agree or the rendering is not trusted;
         ``(Y, X)`` float32."""
         rendering = self.rendering(slope)
-        score = predicted_error(naive, rendering.image)
+        windows = self._kept(slope, "consistency windows", lambda: self._consistency_windows(slope))
+        score = predicted_error(naive, with_local_mean_of(naive, rendering.image, windows))
         for image in self.edge_renderings(slope):
-            np.minimum(score, predicted_error(naive, image), out=score)
+            np.minimum(score, predicted_error(naive, with_local_mean_of(naive, image, windows)), out=score)
         untrusted = rendering.trust < MIN_TRUST
         agree = self.angular_cv(slope) <= MIN_ANGULAR_CV
         score[untrusted | agree] = 0.0
         return score
+
+    def _consistency_windows(self, slope):
+        """Side (px, odd) of each pixel's window of :data:`CONSISTENCY_PERIODS` ghost spacings at ``slope``."""
+        from .baselines import view_spacing
+
+        ghost = np.abs(self.estimate[0].astype(np.float64) - slope) * view_spacing(self.lf.positions)
+        half = np.minimum(np.rint(0.5 * CONSISTENCY_PERIODS * ghost), max(self.lf.image_shape))
+        return (2 * half + 1).astype(np.int64)
 
     @staticmethod
     def blend_weight(mask):
@@ -234,6 +255,42 @@ class DepthGuide:
             return naive.copy()
         weight = self.blend_weight(mask)
         return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)
+
+
+def with_local_mean_of(naive, image, windows):
+    """``image`` with its mean over each pixel's window made that of ``naive``.
+
+    Parameters
+    ----------
+    naive, image : ndarray, shape (Y, X, C)
+    windows : ndarray of int, shape (Y, X)
+        Odd side of the square window around each pixel (1: the pixel
+        alone, left as it is); cut at the image's edges.
+
+    Returns
+    -------
+    ndarray, shape (Y, X, C), float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> naive = np.tile(np.array([0.0, 0.0, 0.9], np.float32), 4)[None, :, None]  # ghosts 3 px apart
+    >>> too_bright = np.full_like(naive, 0.5)
+    >>> with_local_mean_of(naive, too_bright, np.full((1, 12), 3))[0, 1:-1, 0].round(2)
+    array([0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3], dtype=float32)
+    """
+    difference = np.asarray(image, np.float64) - naive
+    rows, cols = windows.shape
+    table = np.zeros((rows + 1, cols + 1) + difference.shape[2:])
+    np.cumsum(np.cumsum(difference, axis=0), axis=1, out=table[1:, 1:])
+    half = windows // 2
+    y, x = np.mgrid[:rows, :cols]
+    y0, y1 = np.maximum(y - half, 0), np.minimum(y + half + 1, rows)
+    x0, x1 = np.maximum(x - half, 0), np.minimum(x + half + 1, cols)
+    area = ((y1 - y0) * (x1 - x0))[..., None]
+    mean = (table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]) / area
+    mean[windows <= 1] = 0.0
+    return (image - mean).astype(np.float32)
 
 
 #: Data peaks within which the renderer's float32 sums neither overflow nor lose the data to underflow.

@@ -222,10 +222,11 @@ class DepthGuide:
         :meth:`edge_renderings`), set to 0 where the views agree or the rendering is not trusted;
         ``(Y, X)`` float32."""
         rendering = self.rendering(slope)
-        windows = self._kept(slope, "consistency windows", lambda: self._consistency_windows(slope))
-        score = predicted_error(naive, with_local_mean_of(naive, rendering.image, windows))
+        windows = self._kept(slope, "consistency windows", lambda: _Windows(self._consistency_windows(slope)))
+        naive_means = windows.means(naive)
+        score = predicted_error(naive, windows.with_mean_of(naive_means, rendering.image))
         for image in self.edge_renderings(slope):
-            np.minimum(score, predicted_error(naive, with_local_mean_of(naive, image, windows)), out=score)
+            np.minimum(score, predicted_error(naive, windows.with_mean_of(naive_means, image)), out=score)
         untrusted = rendering.trust < MIN_TRUST
         agree = self.angular_cv(slope) <= MIN_ANGULAR_CV
         score[untrusted | agree] = 0.0
@@ -264,8 +265,8 @@ def with_local_mean_of(naive, image, windows):
     ----------
     naive, image : ndarray, shape (Y, X, C)
     windows : ndarray of int, shape (Y, X)
-        Odd side of the square window around each pixel (1: the pixel
-        alone, left as it is); cut at the image's edges.
+        Odd side of the square window around each pixel (1: the pixel is
+        left as it is); cut at the image's edges.
 
     Returns
     -------
@@ -279,18 +280,35 @@ def with_local_mean_of(naive, image, windows):
     >>> with_local_mean_of(naive, too_bright, np.full((1, 12), 3))[0, 1:-1, 0].round(2)
     array([0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3], dtype=float32)
     """
-    difference = np.asarray(image, np.float64) - naive
-    rows, cols = windows.shape
-    table = np.zeros((rows + 1, cols + 1) + difference.shape[2:])
-    np.cumsum(np.cumsum(difference, axis=0), axis=1, out=table[1:, 1:])
-    half = windows // 2
-    y, x = np.mgrid[:rows, :cols]
-    y0, y1 = np.maximum(y - half, 0), np.minimum(y + half + 1, rows)
-    x0, x1 = np.maximum(x - half, 0), np.minimum(x + half + 1, cols)
-    area = ((y1 - y0) * (x1 - x0))[..., None]
-    mean = (table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]) / area
-    mean[windows <= 1] = 0.0
-    return (image - mean).astype(np.float32)
+    windows = _Windows(windows)
+    return windows.with_mean_of(windows.means(naive), image)
+
+
+class _Windows:
+    """Square windows of odd side ``sides (Y, X)`` around every pixel, cut at the edges; means over them."""
+
+    def __init__(self, sides):
+        rows, cols = sides.shape
+        half = sides // 2
+        y, x = np.mgrid[:rows, :cols]
+        self.y0, self.y1 = np.maximum(y - half, 0), np.minimum(y + half + 1, rows)
+        self.x0, self.x1 = np.maximum(x - half, 0), np.minimum(x + half + 1, cols)
+        self.area = ((self.y1 - self.y0) * (self.x1 - self.x0))[..., None].astype(np.float64)
+        self.single = sides <= 1
+
+    def means(self, values):
+        """The mean of ``values (Y, X, C)`` over each pixel's window (a summed-area table: any side costs
+        the same), float64."""
+        table = np.zeros((values.shape[0] + 1, values.shape[1] + 1) + values.shape[2:])
+        np.cumsum(np.cumsum(values, axis=0, dtype=np.float64), axis=1, out=table[1:, 1:])
+        y0, y1, x0, x1 = self.y0, self.y1, self.x0, self.x1
+        return (table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]) / self.area
+
+    def with_mean_of(self, target_means, image):
+        """``image`` with its window means made ``target_means``; single-pixel windows left as they are."""
+        shift = self.means(image) - target_means
+        shift[self.single] = 0.0
+        return (image - shift).astype(np.float32)
 
 
 #: Data peaks within which the renderer's float32 sums neither overflow nor lose the data to underflow.

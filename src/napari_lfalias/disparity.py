@@ -99,6 +99,17 @@ TEXTURE_MIN = 1e-4
 FOCUS_RADIUS = 1
 #: Regularisation of the guided filter (guide normalised to [0, 1]).
 GUIDE_EPS = 1e-4
+#: Exponent of the correction of the noise that bilinear resampling averages away (:func:`_blur_scales`):
+#: 0 none, 1 as for white noise (which over-corrects real textures, whose fine detail the resampling
+#: also blurs).
+NOISE_CORRECTION = 0.5
+#: Side (px) of the blocks whose slant is read from the first estimate; a block is slanted where the median
+#: of its disparity gradient exceeds :data:`SLANT_MIN` (px per px) along its steeper axis, and its cost (and
+#: its neighbours') is aggregated again along planes of slant :data:`SLANT` that way (see
+#: :func:`_slanted_aggregate`).
+SLANT_BLOCK = 32
+SLANT_MIN = 0.02
+SLANT = 0.06
 
 
 @dataclass(frozen=True)
@@ -276,8 +287,41 @@ def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=No
     tiles, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
          np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count,
-         tiles, first, order, tolerance, within, out)
+         tiles, first, order, tolerance, within, _blur_scales(positions, slopes), out)
     return out
+
+
+def _interpolation_gain(shift):
+    """The factor by which bilinear interpolation at ``shift`` (px, along one axis) scales the variance of
+    white noise: ``(1 - f)^2 + f^2`` for the fraction ``f``."""
+    fraction = shift - np.floor(shift)
+    return (1.0 - fraction) ** 2 + fraction ** 2
+
+
+def _blur_scales(positions, slopes, power=None):
+    """``(m, n)`` float32: the factor of each view's squared differences at each slope that undoes the
+    noise the bilinear resampling averages away, to the power :data:`NOISE_CORRECTION`.
+
+    Resampling a view between pixels averages its noise: the difference
+    to the reference has the variance ``v = sum_u c_u^2 g_u`` (``c``: the
+    coefficients of the view and of the reference views, ``g``:
+    :func:`_interpolation_gain` of each), less than ``v0`` at whole-pixel
+    shifts. Left alone, a weak, noisy texture's cost is least at the
+    slopes that blur most (a comb of false minima one pixel per view step
+    apart on HCI antinous's floor); ``(v0 / v) ** power`` evens it out.
+    """
+    power = NOISE_CORRECTION if power is None else power
+    ref = _reference_views(positions)
+    gain = _interpolation_gain(np.outer(slopes, positions[:, 0])) * _interpolation_gain(np.outer(slopes, positions[:, 1]))
+    in_ref = np.zeros(len(positions))
+    in_ref[ref] = 1.0
+    own = 1.0 - 2.0 * in_ref / len(ref)  # a view's own coefficient squared, less its share of the reference
+    variance = gain * own + gain[:, ref].sum(axis=1, keepdims=True) / len(ref) ** 2
+    whole = own + 1.0 / len(ref)
+    scale = np.ones_like(variance)
+    alone = whole > 1e-9  # the only reference view differs from itself by nothing: left at 1
+    np.divide(whole[None], variance, out=scale, where=alone[None] & (variance > 1e-9))
+    return np.ascontiguousarray(scale ** power, np.float32)
 
 
 def _relative_cost(cost):
@@ -413,6 +457,80 @@ def _aggregate(relative, needed, guided, radius):
     return out
 
 
+def _block_slants(disparity, block=SLANT_BLOCK):
+    """``(gy, gx)``: the median disparity gradient (px per px) of every ``block`` x ``block`` block."""
+    gy, gx = np.gradient(_box(disparity, 4).astype(np.float64))
+    height, width = disparity.shape
+    n_y, n_x = -(-height // block), -(-width // block)
+
+    def medians(gradient):
+        padded = np.full((n_y * block, n_x * block), np.nan)
+        padded[:height, :width] = gradient
+        return np.nanmedian(padded.reshape(n_y, block, n_x, block).transpose(0, 2, 1, 3).reshape(n_y, n_x, -1),
+                            axis=-1)
+
+    return medians(gy), medians(gx)
+
+
+def _shears(disparity, block=SLANT_BLOCK):
+    """``{(slant_y, slant_x): blocks (n_y, n_x) bool}``: the slanted planes to aggregate along and where.
+
+    A block whose median gradient (:func:`_block_slants`) exceeds
+    :data:`SLANT_MIN` along its steeper axis asks for :data:`SLANT` that
+    way, for itself and its four neighbours (the first estimate flattens a
+    slant towards its ends, where the fronto-parallel windows fail most).
+    """
+    gy, gx = _block_slants(disparity, block)
+    shears = {}
+    for i, j in np.argwhere(np.maximum(np.abs(gy), np.abs(gx)) >= SLANT_MIN):
+        along_y = abs(gy[i, j]) >= abs(gx[i, j])
+        slant = (math.copysign(SLANT, gy[i, j]), 0.0) if along_y else (0.0, math.copysign(SLANT, gx[i, j]))
+        blocks = shears.setdefault(slant, np.zeros(gy.shape, bool))
+        blocks[max(i - 1, 0):i + 2, j] = True
+        blocks[i, max(j - 1, 0):j + 2] = True
+    return shears
+
+
+def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, out, block=SLANT_BLOCK):
+    """Lower ``out`` (the fronto-parallel aggregation) to the guided filter of ``relative`` along planes of
+    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``.
+
+    A window of a strongly slanted surface holds many disparities: its
+    fronto-parallel aggregate is broad and its minimum drifts (HCI
+    antinous's floor, 0.06 px per px). Sheared along the slant
+    (:func:`_disparity_kernels.shear_slices`), filtered, and sheared back,
+    every pixel's cost is aggregated over the plane of that slant through
+    it; the least of the two costs per pixel and slope keeps fronto-parallel
+    surfaces (and edges) as they were.
+    """
+    from scipy import ndimage
+
+    m, height, width = relative.shape
+    tile_h, tile_w = -(-height // needed.shape[1]), -(-width // needed.shape[2])
+    reach = 2 * radius + 2
+    shear_y, shear_x = slant[0] / step, slant[1] / step
+    labels, count = ndimage.label(blocks)
+    for index, (rows, cols) in enumerate(ndimage.find_objects(labels), start=1):
+        y0, y1 = rows.start * block, min(height, rows.stop * block)
+        x0, x1 = cols.start * block, min(width, cols.stop * block)
+        used = needed[:, y0 // tile_h:-(-y1 // tile_h), x0 // tile_w:-(-x1 // tile_w)].any(axis=(1, 2))
+        if not used.any():
+            continue
+        j_lo, j_hi = int(np.argmax(used)), int(m - 1 - np.argmax(used[::-1]))
+        gy0, gx0 = max(0, y0 - reach) // 2 * 2, max(0, x0 - reach) // 2 * 2
+        gy1, gx1 = min(height, y1 + reach), min(width, x1 + reach)
+        centre_y, centre_x = 0.5 * (gy1 - gy0 - 1), 0.5 * (gx1 - gx0 - 1)
+        extra = int(math.ceil(abs(shear_y) * centre_y + abs(shear_x) * centre_x)) + 1
+        j0 = j_lo - extra
+        sheared = np.empty((j_hi - j_lo + 1 + 2 * extra, gy1 - gy0, gx1 - gx0), np.float32)
+        _run("shear_slices", relative, gy0, gx0, j0, shear_y, shear_x, centre_y, centre_x, COST_CAP, sheared)
+        filtered = guided.window(sheared, gy0, gx0)
+        inside = np.zeros(sheared.shape[1:], bool)
+        mine = np.repeat(np.repeat(labels[rows, cols] == index, block, 0), block, 1)
+        inside[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0] = mine[:y1 - y0, :x1 - x0]
+        _run("unshear_min", filtered, j0, shear_y, shear_x, centre_y, centre_x, gy0, gx0, inside, j_lo, j_hi, out)
+
+
 def _winner(aggregated, slopes, step, cost=None):
     """Sub-step argmin of the aggregated cost and the confidence of the choice.
 
@@ -452,6 +570,13 @@ def _winner(aggregated, slopes, step, cost=None):
 
 
 # -- filling ---------------------------------------------------------------------------------
+
+def _filled(disparity, confidence, guide):
+    """``disparity`` where confident, an edge-aware smoothing of the confident values where not."""
+    smooth, _ = _smooth(disparity, confidence ** 2, guide, lam=30.0)
+    keep = confidence ** 2
+    return (keep * disparity + (1 - keep) * smooth).astype(np.float32)
+
 
 def _smooth(values, weights, guide, lam, sigma=0.02, iterations=3):
     """Edge-aware normalised smoothing of ``values`` with data ``weights`` (fast global smoother)."""
@@ -665,20 +790,27 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     seconds["sweep"] = time.perf_counter() - clock
     yield (3, 5, "sweep")
     clock = time.perf_counter()
-    aggregated = _aggregate(_relative_cost(cost), needed, _GuidedFilter(guide, radius), radius)
+    relative = _relative_cost(cost)
+    guided = _GuidedFilter(guide, radius)
+    aggregated = _aggregate(relative, needed, guided, radius)
     disparity, confidence = _winner(aggregated, slopes, step, cost)
+    shears = _shears(_filled(disparity, confidence, guide)) if len(slopes) >= 3 else {}
+    for slant, blocks in shears.items():
+        _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, aggregated)
+    if shears:
+        disparity, confidence = _winner(aggregated, slopes, step, cost)
     seconds["aggregate"] = time.perf_counter() - clock
     yield (4, 5, "aggregation")
 
     clock = time.perf_counter()
     if fill:
-        smooth, _ = _smooth(disparity, confidence ** 2, guide, lam=30.0)
-        keep = confidence ** 2
-        disparity = (keep * disparity + (1 - keep) * smooth).astype(np.float32)
+        disparity = _filled(disparity, confidence, guide)
     seconds["fill"] = time.perf_counter() - clock
     yield (5, 5, "fill")
     params = {"radius": radius, "step": step, "coarse_level": level, "n_slopes": len(slopes),
-              "evaluated_share": float(needed.mean()), "seconds": seconds}
+              "evaluated_share": float(needed.mean()),
+              "slanted_share": float(np.mean(np.logical_or.reduce(list(shears.values())))) if shears else 0.0,
+              "seconds": seconds}
     return DisparityEstimate(disparity, np.clip(confidence, 0, 1).astype(np.float32), (low, high), params)
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
-           "unshear_min"]
+           "unshear_min", "winner_scan"]
 
 
 @njit(cache=True, inline="always")
@@ -528,3 +528,25 @@ def unshear_min(filtered, j0, shear_y, shear_x, centre_y, centre_x, y0, x0, insi
                 value = (1.0 - frac) * filtered[low, y, x] + frac * filtered[low + 1, y, x]
                 if value < out[j, y0 + y, x0 + x]:
                     out[j, y0 + y, x0 + x] = value
+
+
+@njit(cache=True, parallel=True)
+def winner_scan(aggregated, apart, best, least, second):
+    """Per pixel of ``aggregated (m, Y, X)``: the index of its least value (``best``), that value
+    (``least``), and the least value more than ``apart`` indices from it (``second``, ``inf`` if none)."""
+    m, n_rows, n_cols = aggregated.shape
+    for y in prange(n_rows):
+        for x in range(n_cols):
+            b = 0
+            low = aggregated[0, y, x]
+            for j in range(1, m):
+                if aggregated[j, y, x] < low:
+                    low = aggregated[j, y, x]
+                    b = j
+            other = np.inf
+            for j in range(m):
+                if abs(j - b) > apart and aggregated[j, y, x] < other:
+                    other = aggregated[j, y, x]
+            best[y, x] = b
+            least[y, x] = low
+            second[y, x] = other

@@ -110,6 +110,8 @@ NOISE_CORRECTION = 0.5
 SLANT_BLOCK = 32
 SLANT_MIN = 0.02
 SLANT = 0.06
+#: A disparity gradient (px per px, after a 9 px box) above this is a depth edge, not a slant.
+SLANT_EDGE = 0.2
 
 
 @dataclass(frozen=True)
@@ -458,16 +460,23 @@ def _aggregate(relative, needed, guided, radius):
 
 
 def _block_slants(disparity, block=SLANT_BLOCK):
-    """``(gy, gx)``: the median disparity gradient (px per px) of every ``block`` x ``block`` block."""
+    """``(gy, gx)``: the median disparity gradient (px per px) of every ``block`` x ``block`` block, over its
+    pixels away from depth edges (a gradient above :data:`SLANT_EDGE`, and 4 px around); 0 for a block
+    with less than half its pixels left."""
+    from scipy import ndimage
+
     gy, gx = np.gradient(_box(disparity, 4).astype(np.float64))
+    edge = ndimage.binary_dilation(np.hypot(gy, gx) > SLANT_EDGE, iterations=4)
     height, width = disparity.shape
     n_y, n_x = -(-height // block), -(-width // block)
 
     def medians(gradient):
         padded = np.full((n_y * block, n_x * block), np.nan)
-        padded[:height, :width] = gradient
-        return np.nanmedian(padded.reshape(n_y, block, n_x, block).transpose(0, 2, 1, 3).reshape(n_y, n_x, -1),
-                            axis=-1)
+        padded[:height, :width] = np.where(edge, np.nan, gradient)
+        per_block = padded.reshape(n_y, block, n_x, block).transpose(0, 2, 1, 3).reshape(n_y, n_x, -1)
+        enough = np.isfinite(per_block).sum(axis=-1) >= block * block // 2
+        per_block[~enough] = 0.0
+        return np.nanmedian(per_block, axis=-1)
 
     return medians(gy), medians(gx)
 
@@ -477,8 +486,9 @@ def _shears(disparity, block=SLANT_BLOCK):
 
     A block whose median gradient (:func:`_block_slants`) exceeds
     :data:`SLANT_MIN` along its steeper axis asks for :data:`SLANT` that
-    way, for itself and its four neighbours (the first estimate flattens a
-    slant towards its ends, where the fronto-parallel windows fail most).
+    way, for itself and its two neighbours that way (the first estimate
+    flattens a slant towards its ends, where the fronto-parallel windows
+    fail most).
     """
     gy, gx = _block_slants(disparity, block)
     shears = {}
@@ -486,14 +496,35 @@ def _shears(disparity, block=SLANT_BLOCK):
         along_y = abs(gy[i, j]) >= abs(gx[i, j])
         slant = (math.copysign(SLANT, gy[i, j]), 0.0) if along_y else (0.0, math.copysign(SLANT, gx[i, j]))
         blocks = shears.setdefault(slant, np.zeros(gy.shape, bool))
-        blocks[max(i - 1, 0):i + 2, j] = True
-        blocks[i, max(j - 1, 0):j + 2] = True
+        if along_y:
+            blocks[max(i - 1, 0):i + 2, j] = True
+        else:
+            blocks[i, max(j - 1, 0):j + 2] = True
     return shears
+
+
+def _sheared_range(needed, tile, window, shear, centre):
+    """``(k_lo, k_hi)``: the sheared slope indices (``t - shear . (p - centre)``) that hold a computed cost
+    in ``window = (y0, y1, x0, x1)``, from the slopes every tile there needed; None if none."""
+    y0, y1, x0, x1 = window
+    k_lo, k_hi = np.inf, -np.inf
+    for ty in range(y0 // tile[0], -(-y1 // tile[0])):
+        for tx in range(x0 // tile[1], -(-x1 // tile[1])):
+            used = np.flatnonzero(needed[:, ty, tx])
+            if used.size == 0:
+                continue
+            ys = np.array([max(y0, ty * tile[0]), min(y1, (ty + 1) * tile[0]) - 1]) - y0 - centre[0]
+            xs = np.array([max(x0, tx * tile[1]), min(x1, (tx + 1) * tile[1]) - 1]) - x0 - centre[1]
+            shifts = shear[0] * ys[:, None] + shear[1] * xs[None, :]
+            k_lo = min(k_lo, used[0] - shifts.max())
+            k_hi = max(k_hi, used[-1] - shifts.min())
+    return None if k_lo > k_hi else (k_lo, k_hi)
 
 
 def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, out, block=SLANT_BLOCK):
     """Lower ``out`` (the fronto-parallel aggregation) to the guided filter of ``relative`` along planes of
-    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``.
+    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``; returns the boxes
+    ``(y0, y1, x0, x1)`` it may have changed.
 
     A window of a strongly slanted surface holds many disparities: its
     fronto-parallel aggregate is broad and its minimum drifts (HCI
@@ -506,29 +537,30 @@ def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, ou
     from scipy import ndimage
 
     m, height, width = relative.shape
-    tile_h, tile_w = -(-height // needed.shape[1]), -(-width // needed.shape[2])
+    tile = (-(-height // needed.shape[1]), -(-width // needed.shape[2]))
     reach = 2 * radius + 2
-    shear_y, shear_x = slant[0] / step, slant[1] / step
-    labels, count = ndimage.label(blocks)
+    shear = (slant[0] / step, slant[1] / step)
+    labels, _ = ndimage.label(blocks)
+    boxes = []
     for index, (rows, cols) in enumerate(ndimage.find_objects(labels), start=1):
         y0, y1 = rows.start * block, min(height, rows.stop * block)
         x0, x1 = cols.start * block, min(width, cols.stop * block)
-        used = needed[:, y0 // tile_h:-(-y1 // tile_h), x0 // tile_w:-(-x1 // tile_w)].any(axis=(1, 2))
-        if not used.any():
-            continue
-        j_lo, j_hi = int(np.argmax(used)), int(m - 1 - np.argmax(used[::-1]))
         gy0, gx0 = max(0, y0 - reach) // 2 * 2, max(0, x0 - reach) // 2 * 2
         gy1, gx1 = min(height, y1 + reach), min(width, x1 + reach)
-        centre_y, centre_x = 0.5 * (gy1 - gy0 - 1), 0.5 * (gx1 - gx0 - 1)
-        extra = int(math.ceil(abs(shear_y) * centre_y + abs(shear_x) * centre_x)) + 1
-        j0 = j_lo - extra
-        sheared = np.empty((j_hi - j_lo + 1 + 2 * extra, gy1 - gy0, gx1 - gx0), np.float32)
-        _run("shear_slices", relative, gy0, gx0, j0, shear_y, shear_x, centre_y, centre_x, COST_CAP, sheared)
+        centre = (0.5 * (gy1 - gy0 - 1), 0.5 * (gx1 - gx0 - 1))
+        span = _sheared_range(needed, tile, (gy0, gy1, gx0, gx1), shear, centre)
+        if span is None:
+            continue
+        j0 = int(math.floor(span[0]))
+        sheared = np.empty((int(math.ceil(span[1])) - j0 + 1, gy1 - gy0, gx1 - gx0), np.float32)
+        _run("shear_slices", relative, gy0, gx0, j0, shear[0], shear[1], centre[0], centre[1], COST_CAP, sheared)
         filtered = guided.window(sheared, gy0, gx0)
         inside = np.zeros(sheared.shape[1:], bool)
         mine = np.repeat(np.repeat(labels[rows, cols] == index, block, 0), block, 1)
         inside[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0] = mine[:y1 - y0, :x1 - x0]
-        _run("unshear_min", filtered, j0, shear_y, shear_x, centre_y, centre_x, gy0, gx0, inside, j_lo, j_hi, out)
+        _run("unshear_min", filtered, j0, shear[0], shear[1], centre[0], centre[1], gy0, gx0, inside, 0, m - 1, out)
+        boxes.append((y0, y1, x0, x1))
+    return boxes
 
 
 def _winner(aggregated, slopes, step, cost=None):
@@ -540,13 +572,14 @@ def _winner(aggregated, slopes, step, cost=None):
     the curve's sides: its vertex snaps to the grid), else the aggregated.
     """
     m = len(slopes)
-    best = np.argmin(aggregated, axis=0)
+    aggregated = np.ascontiguousarray(aggregated, np.float32)
+    best = np.empty(aggregated.shape[1:], np.int64)
+    least, second = np.empty(best.shape, np.float32), np.empty(best.shape, np.float32)
+    _run("winner_scan", aggregated, 2, best, least, second)
     inner = np.clip(best, 1, max(m - 2, 1))
     if cost is not None and m >= 3:
-        c1 = np.take_along_axis(aggregated, best[None], 0)[0]
         offset = np.empty(best.shape, np.float32)
-        _run("subslope_offsets", np.ascontiguousarray(cost, np.float32), np.ascontiguousarray(best, np.int64), 1,
-             offset)
+        _run("subslope_offsets", np.ascontiguousarray(cost, np.float32), best, 1, offset)
         disparity = slopes[best] + offset * step
     elif m >= 3:
         c0 = np.take_along_axis(aggregated, (inner - 1)[None], 0)[0]
@@ -558,11 +591,7 @@ def _winner(aggregated, slopes, step, cost=None):
         disparity = slopes[inner] + np.clip(offset, -0.5, 0.5) * step
     else:
         disparity = slopes[best].astype(np.float64)
-        c1 = np.take_along_axis(aggregated, best[None], 0)[0]
-    index = np.arange(m)[:, None, None]
-    far = np.abs(index - best[None]) > 2
-    second = np.where(far, aggregated, np.inf).min(axis=0)
-    gap = np.where(np.isfinite(second), second - np.take_along_axis(aggregated, best[None], 0)[0], 0.0)
+    gap = np.where(np.isfinite(second), second - least, 0.0)
     confidence = 1.0 - np.exp(-np.maximum(gap, 0.0) / (0.6 * COST_CAP))
     at_end = (best == 0) | (best == m - 1)
     confidence[at_end] *= 0.25
@@ -796,9 +825,13 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     disparity, confidence = _winner(aggregated, slopes, step, cost)
     shears = _shears(_filled(disparity, confidence, guide)) if len(slopes) >= 3 else {}
     for slant, blocks in shears.items():
-        _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, aggregated)
-    if shears:
-        disparity, confidence = _winner(aggregated, slopes, step, cost)
+        for y0, y1, x0, x1 in _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, aggregated):
+            # the winner again there (one pixel more around: the sub-step reads a 3x3 window of the cost)
+            ys, xs = slice(max(y0 - 1, 0), y1 + 1), slice(max(x0 - 1, 0), x1 + 1)
+            box_disparity, box_confidence = _winner(aggregated[:, ys, xs], slopes, step, cost[:, ys, xs])
+            inner = (slice(y0 - ys.start, y1 - ys.start), slice(x0 - xs.start, x1 - xs.start))
+            disparity[y0:y1, x0:x1] = box_disparity[inner]
+            confidence[y0:y1, x0:x1] = box_confidence[inner]
     seconds["aggregate"] = time.perf_counter() - clock
     yield (4, 5, "aggregation")
 

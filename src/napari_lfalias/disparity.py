@@ -19,7 +19,10 @@ Method
    groups of views: all of them, and the four half-apertures (left,
    right, top, bottom). Near an occlusion edge the half that does not see
    the occluder still agrees on the occluded surface, so the edge does not
-   spread.
+   spread. Each view's squared difference is scaled to undo the noise
+   that resampling it between pixels averages away (half way:
+   :data:`NOISE_CORRECTION`), else a weak, noisy texture's cost is least
+   at the slopes that blur most.
 3. **Coarse to fine.** The whole slope range is swept on a coarse pyramid
    level (about 0.5 px of motion of the outermost view per slope step
    there); at full resolution every 32 px tile sweeps only the slopes
@@ -29,7 +32,11 @@ Method
    (logarithmic, truncated, so that a few strongly textured pixels do not
    out-vote the rest of a window) is smoothed by a guided filter (He et
    al. 2013) whose guide is the centre of the aperture: the window follows
-   the image's edges.
+   the image's edges. Where the first estimate is steeply slanted (blocks
+   of 32 px, away from depth edges), the cost is aggregated again along
+   sheared planes of that slant, and each pixel and slope keeps the lesser
+   of the two: a fronto-parallel window on a slanted floor holds many
+   disparities at once.
 5. **Winner and sub-step.** The slope of least aggregated cost, refined
    by a parabola through its neighbours. The confidence is the gap from
    the best cost to the best cost more than two steps away (0: flat or

@@ -119,6 +119,8 @@ SLANT_MIN = 0.02
 SLANT = 0.06
 #: A disparity gradient (px per px, after a 9 px box) above this is a depth edge, not a slant.
 SLANT_EDGE = 0.2
+#: The slanted aggregation searches this far (px) either side of the first estimate's sheared disparities.
+SLANT_REACH = 1.0
 
 
 @dataclass(frozen=True)
@@ -528,10 +530,11 @@ def _sheared_range(needed, tile, window, shear, centre):
     return None if k_lo > k_hi else (k_lo, k_hi)
 
 
-def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, out, block=SLANT_BLOCK):
+def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, first, out, block=SLANT_BLOCK):
     """Lower ``out`` (the fronto-parallel aggregation) to the guided filter of ``relative`` along planes of
-    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``; returns the boxes
-    ``(y0, y1, x0, x1)`` it may have changed.
+    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``, for the slopes within
+    :data:`SLANT_REACH` of the plane of that slant through the first estimate (``first``, in slope indices);
+    returns the boxes ``(y0, y1, x0, x1)`` it may have changed.
 
     A window of a strongly slanted surface holds many disparities: its
     fronto-parallel aggregate is broad and its minimum drifts (HCI
@@ -558,8 +561,16 @@ def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, ou
         span = _sheared_range(needed, tile, (gy0, gy1, gx0, gx1), shear, centre)
         if span is None:
             continue
-        j0 = int(math.floor(span[0]))
-        sheared = np.empty((int(math.ceil(span[1])) - j0 + 1, gy1 - gy0, gx1 - gx0), np.float32)
+        # the sheared indices of the first estimate: nearly constant along a slant it half follows
+        ys, xs = np.ogrid[0:gy1 - gy0, 0:gx1 - gx0]
+        along = first[gy0:gy1, gx0:gx1] - shear[0] * (ys - centre[0]) - shear[1] * (xs - centre[1])
+        low, high = np.percentile(along, [5, 95])
+        around = SLANT_REACH / step
+        j0 = int(math.floor(max(span[0], low - around)))
+        top = int(math.ceil(min(span[1], high + around)))
+        if top <= j0:
+            continue
+        sheared = np.empty((top - j0 + 1, gy1 - gy0, gx1 - gx0), np.float32)
         _run("shear_slices", relative, gy0, gx0, j0, shear[0], shear[1], centre[0], centre[1], COST_CAP, sheared)
         filtered = guided.window(sheared, gy0, gx0)
         inside = np.zeros(sheared.shape[1:], bool)
@@ -830,9 +841,12 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     guided = _GuidedFilter(guide, radius)
     aggregated = _aggregate(relative, needed, guided, radius)
     disparity, confidence = _winner(aggregated, slopes, step, cost)
-    shears = _shears(_filled(disparity, confidence, guide)) if len(slopes) >= 3 else {}
+    first = _filled(disparity, confidence, guide) if len(slopes) >= 3 else None
+    shears = _shears(first) if first is not None else {}
     for slant, blocks in shears.items():
-        for y0, y1, x0, x1 in _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, aggregated):
+        first_index = (first - slopes[0]) / step
+        for y0, y1, x0, x1 in _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, first_index,
+                                                 aggregated):
             # the winner again there (one pixel more around: the sub-step reads a 3x3 window of the cost)
             ys, xs = slice(max(y0 - 1, 0), y1 + 1), slice(max(x0 - 1, 0), x1 + 1)
             box_disparity, box_confidence = _winner(aggregated[:, ys, xs], slopes, step, cost[:, ys, xs])
@@ -843,8 +857,8 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     yield (4, 5, "aggregation")
 
     clock = time.perf_counter()
-    if fill:
-        disparity = _filled(disparity, confidence, guide)
+    if fill:  # nothing changed since the first estimate was filled unless a slant was aggregated
+        disparity = first if first is not None and not shears else _filled(disparity, confidence, guide)
     seconds["fill"] = time.perf_counter() - clock
     yield (5, 5, "fill")
     params = {"radius": radius, "step": step, "coarse_level": level, "n_slopes": len(slopes),

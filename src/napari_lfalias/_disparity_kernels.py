@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
-           "unshear_min", "winner_scan"]
+           "unshear_min", "winner_scan", "relative_costs"]
 
 
 @njit(cache=True, inline="always")
@@ -550,3 +550,30 @@ def winner_scan(aggregated, apart, best, least, second):
             best[y, x] = b
             least[y, x] = low
             second[y, x] = other
+
+
+@njit(cache=True, parallel=True)
+def relative_costs(cost, eps, cap, out):
+    """``min(log(c + eps) - min_s log(c + eps), cap)`` of every pixel's cost curve in ``cost (m, Y, X)``, in
+    one pass; ``cap`` where a cost is not finite (not computed)."""
+    m, n_rows, n_cols = cost.shape
+    for y in prange(n_rows):
+        best = np.empty(n_cols, np.float32)
+        for x in range(n_cols):
+            best[x] = np.inf
+        for j in range(m):
+            for x in range(n_cols):
+                value = cost[j, y, x]
+                if np.isfinite(value):
+                    out[j, y, x] = np.log(value + eps)
+                    if out[j, y, x] < best[x]:
+                        best[x] = out[j, y, x]
+                else:
+                    out[j, y, x] = np.inf
+        for x in range(n_cols):
+            if not np.isfinite(best[x]):
+                best[x] = 0.0
+        for j in range(m):
+            for x in range(n_cols):
+                value = out[j, y, x] - best[x]
+                out[j, y, x] = value if value < cap else cap

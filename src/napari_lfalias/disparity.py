@@ -337,15 +337,10 @@ def _blur_scales(positions, slopes, power=None):
 
 def _relative_cost(cost):
     """``min(log(c + eps) - min_s log(c + eps), cap)``; ``cap`` where not computed."""
-    finite = np.isfinite(cost)
-    logc = np.log(np.where(finite, cost, 1.0) + np.float32(COST_EPS)).astype(np.float32)
-    logc[~finite] = np.inf
-    best = logc.min(axis=0)
-    best[~np.isfinite(best)] = 0.0
-    rel = logc - best
-    np.minimum(rel, np.float32(COST_CAP), out=rel)
-    rel[~finite] = COST_CAP
-    return rel
+    cost = np.ascontiguousarray(cost, np.float32)
+    out = np.empty_like(cost)
+    _run("relative_costs", cost, np.float32(COST_EPS), np.float32(COST_CAP), out)
+    return out
 
 
 # -- aggregation ----------------------------------------------------------------------------

@@ -323,7 +323,8 @@ def _blur_scales(positions, slopes, power=None):
     """
     power = NOISE_CORRECTION if power is None else power
     ref = _reference_views(positions)
-    gain = _interpolation_gain(np.outer(slopes, positions[:, 0])) * _interpolation_gain(np.outer(slopes, positions[:, 1]))
+    gain = (_interpolation_gain(np.outer(slopes, positions[:, 0]))
+            * _interpolation_gain(np.outer(slopes, positions[:, 1])))
     in_ref = np.zeros(len(positions))
     in_ref[ref] = 1.0
     own = 1.0 - 2.0 * in_ref / len(ref)  # a view's own coefficient squared, less its share of the reference

@@ -30,3 +30,35 @@ def distance_from_depth_edges(disparity):
     if not edge.any():
         return np.full(disparity.shape, np.inf)
     return ndimage.distance_transform_edt(~edge)
+
+
+def slanted_plane(n_views=5, size=160, slant=(0.08, 0.0), offset=0.3, contrast=0.1, noise=0.0, seed=0):
+    """A grey light field of one plane whose disparity is ``offset + slant . (p - centre)`` (px per px), and
+    that disparity ``(size, size)``: the layered scenes of :mod:`napari_lfalias.synthetic` are fronto-parallel.
+
+    The plane's texture is white noise blurred by a Gaussian of 1 px
+    (standard deviation ``contrast`` about 0.5), drawn in every view at
+    the point of the plane that projects there (cubic interpolation);
+    ``noise`` adds sensor noise of that standard deviation to every view.
+    """
+    rng = np.random.default_rng(seed)
+    margin = 64
+    texture = ndimage.gaussian_filter(rng.standard_normal((size + 2 * margin,) * 2), 1.0)
+    texture = 0.5 + contrast * texture / texture.std()
+    centre = (size - 1) / 2.0
+    steps = np.arange(n_views) - (n_views - 1) / 2.0
+    grid = np.mgrid[0:size, 0:size].reshape(2, -1) - centre
+    data = np.empty((n_views, n_views, size, size, 1), np.float32)
+    positions = np.zeros((n_views, n_views, 2))
+    for i, qy in enumerate(steps):
+        for j, qx in enumerate(steps):
+            positions[i, j] = (qy, qx)
+            # view q shows the plane's point t at t + d(t) q: solve that (linear in t) for t
+            shear = np.array([[1 + slant[0] * qy, slant[1] * qy], [slant[0] * qx, 1 + slant[1] * qx]])
+            seen = np.linalg.solve(shear, grid - offset * np.array([[qy], [qx]]))
+            view = ndimage.map_coordinates(texture, seen + centre + margin, order=3, mode="reflect")
+            if noise:
+                view = view + noise * rng.standard_normal(view.shape)
+            data[i, j, ..., 0] = view.reshape(size, size)
+    truth = offset + slant[0] * grid[0].reshape(size, size) + slant[1] * grid[1].reshape(size, size)
+    return lfa.LightField(data, positions, {"source": "slanted plane"}), truth

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets"]
+__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
+           "unshear_min", "winner_scan", "relative_costs"]
 
 
 @njit(cache=True, inline="always")
@@ -79,10 +80,11 @@ def _add_view(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi,
 
 @njit(cache=True, inline="always")
 def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, ty0, ref, ref_count,
-                groups, acc, cnt, tolerance, within):
-    """Squared feature differences of view ``i``'s samples to ``ref``, added to the groups ``groups`` of
-    ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns ``x_lo .. x_hi``.
-    With ``within``, 1 where the difference is at most ``tolerance[y, x]`` (else 0) is added instead."""
+                groups, acc, cnt, tolerance, within, scale):
+    """Squared feature differences of view ``i``'s samples to ``ref``, times ``scale``, added to the groups
+    ``groups`` of ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns
+    ``x_lo .. x_hi``. With ``within``, 1 where the difference is at most ``tolerance[y, x]`` (else 0) is added
+    instead."""
     n_feat = features.shape[1]
     a = np.float32((1.0 - fy) * (1.0 - fx))
     b = np.float32((1.0 - fy) * fx)
@@ -116,6 +118,9 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
             tol = tolerance[y, x_lo:x_hi]
             for x in range(width):
                 err[x] = np.float32(1.0) if err[x] <= tol[x] else np.float32(0.0)
+        else:
+            for x in range(width):
+                err[x] *= scale
         for g in groups:
             acc_g = acc[g, r, x_lo - x0:x_hi - x0]
             cnt_g = cnt[g, r, x_lo - x0:x_hi - x0]
@@ -126,7 +131,7 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
 
 @njit(cache=True, parallel=True, fastmath=True)
 def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
-                tolerance, within, out):
+                tolerance, within, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
     Tile-major: a tile's views are read into the cache once and all its
@@ -157,6 +162,9 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         With ``within``, ``out`` is instead the share (by weight) of all
         the views whose difference to the reference is at most
         ``tolerance`` at the pixel (the views that agree with the centre).
+    view_scale : (m, n) float32
+        Factor of view ``i``'s squared differences at slope ``j`` (not
+        used with ``within``).
     out : (m, Y, X) float32
         Smallest group's weighted mean of the squared feature differences
         to the (weighted) reference; left as it is where a tile does not
@@ -201,7 +209,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                 if yb <= ya or xb <= xa:
                     continue
                 _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
-                            ref_count, view_groups[i], acc, cnt, tolerance, within)
+                            ref_count, view_groups[i], acc, cnt, tolerance, within, view_scale[j, i])
             if within:
                 for r in range(height):
                     for x in range(width):
@@ -462,3 +470,110 @@ def subslope_offsets(cost, best, radius, out):
             curvature = c0 - 2.0 * c1 + c2
             if curvature > 1e-9:
                 out[y, x] = min(max(0.5 * (c0 - c2) / curvature, -0.5), 0.5)
+
+
+@njit(cache=True, parallel=True)
+def shear_slices(relative, y0, x0, j0, shear_y, shear_x, centre_y, centre_x, cap, out):
+    """The cost of a window along slanted planes: ``out[k, y, x]`` is ``relative[t, y0 + y, x0 + x]`` at
+    ``t = j0 + k + shear_y (y - centre_y) + shear_x (x - centre_x)`` (slope indices, linear between them;
+    ``cap`` beyond the volume), so that a fronto-parallel filter of ``out`` aggregates every pixel's cost
+    over the plane of that slant through it.
+
+    Parameters
+    ----------
+    relative : (m, Y, X) float32
+    y0, x0 : int
+        Origin of the window ``out`` covers.
+    j0 : int
+        Slope index of ``out[0]`` at the centre.
+    shear_y, shear_x : float
+        Slant in slope indices per pixel.
+    centre_y, centre_x : float
+        Window coordinates where the shear is 0.
+    cap : float
+    out : (K, h, w) float32
+    """
+    m = relative.shape[0]
+    n_k, height, width = out.shape
+    for y in prange(height):
+        for x in range(width):
+            shift = j0 + shear_y * (y - centre_y) + shear_x * (x - centre_x)
+            for k in range(n_k):
+                t = k + shift
+                low = int(np.floor(t))
+                if low < 0 or low + 1 > m - 1:
+                    out[k, y, x] = relative[m - 1, y0 + y, x0 + x] if (low == m - 1 and t - low < 1e-6) else cap
+                    continue
+                frac = t - low
+                out[k, y, x] = (1.0 - frac) * relative[low, y0 + y, x0 + x] + frac * relative[low + 1, y0 + y, x0 + x]
+
+
+@njit(cache=True, parallel=True)
+def unshear_min(filtered, j0, shear_y, shear_x, centre_y, centre_x, y0, x0, inside, j_lo, j_hi, out):
+    """Back from :func:`shear_slices`'s indices: ``out[j, y0 + y, x0 + x]`` becomes the least of itself and
+    ``filtered`` at ``k = j - j0 - shear_y (y - centre_y) - shear_x (x - centre_x)`` (linear), for the slopes
+    ``j_lo .. j_hi`` and the window pixels where ``inside (h, w)``."""
+    n_k, height, width = filtered.shape
+    for y in prange(height):
+        for x in range(width):
+            if not inside[y, x]:
+                continue
+            shift = j0 + shear_y * (y - centre_y) + shear_x * (x - centre_x)
+            for j in range(j_lo, j_hi + 1):
+                t = j - shift
+                low = int(np.floor(t))
+                if low < 0 or low + 1 > n_k - 1:
+                    continue
+                frac = t - low
+                value = (1.0 - frac) * filtered[low, y, x] + frac * filtered[low + 1, y, x]
+                if value < out[j, y0 + y, x0 + x]:
+                    out[j, y0 + y, x0 + x] = value
+
+
+@njit(cache=True, parallel=True)
+def winner_scan(aggregated, apart, best, least, second):
+    """Per pixel of ``aggregated (m, Y, X)``: the index of its least value (``best``), that value
+    (``least``), and the least value more than ``apart`` indices from it (``second``, ``inf`` if none)."""
+    m, n_rows, n_cols = aggregated.shape
+    for y in prange(n_rows):
+        for x in range(n_cols):
+            b = 0
+            low = aggregated[0, y, x]
+            for j in range(1, m):
+                if aggregated[j, y, x] < low:
+                    low = aggregated[j, y, x]
+                    b = j
+            other = np.inf
+            for j in range(m):
+                if abs(j - b) > apart and aggregated[j, y, x] < other:
+                    other = aggregated[j, y, x]
+            best[y, x] = b
+            least[y, x] = low
+            second[y, x] = other
+
+
+@njit(cache=True, parallel=True)
+def relative_costs(cost, eps, cap, out):
+    """``min(log(c + eps) - min_s log(c + eps), cap)`` of every pixel's cost curve in ``cost (m, Y, X)``, in
+    one pass; ``cap`` where a cost is not finite (not computed)."""
+    m, n_rows, n_cols = cost.shape
+    for y in prange(n_rows):
+        best = np.empty(n_cols, np.float32)
+        for x in range(n_cols):
+            best[x] = np.inf
+        for j in range(m):
+            for x in range(n_cols):
+                value = cost[j, y, x]
+                if np.isfinite(value):
+                    out[j, y, x] = np.log(value + eps)
+                    if out[j, y, x] < best[x]:
+                        best[x] = out[j, y, x]
+                else:
+                    out[j, y, x] = np.inf
+        for x in range(n_cols):
+            if not np.isfinite(best[x]):
+                best[x] = 0.0
+        for j in range(m):
+            for x in range(n_cols):
+                value = out[j, y, x] - best[x]
+                out[j, y, x] = value if value < cap else cap

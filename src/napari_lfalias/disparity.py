@@ -19,7 +19,10 @@ Method
    groups of views: all of them, and the four half-apertures (left,
    right, top, bottom). Near an occlusion edge the half that does not see
    the occluder still agrees on the occluded surface, so the edge does not
-   spread.
+   spread. Each view's squared difference is scaled to undo the noise
+   that resampling it between pixels averages away (half way:
+   :data:`NOISE_CORRECTION`), else a weak, noisy texture's cost is least
+   at the slopes that blur most.
 3. **Coarse to fine.** The whole slope range is swept on a coarse pyramid
    level (about 0.5 px of motion of the outermost view per slope step
    there); at full resolution every 32 px tile sweeps only the slopes
@@ -29,7 +32,11 @@ Method
    (logarithmic, truncated, so that a few strongly textured pixels do not
    out-vote the rest of a window) is smoothed by a guided filter (He et
    al. 2013) whose guide is the centre of the aperture: the window follows
-   the image's edges.
+   the image's edges. Where the first estimate is steeply slanted (blocks
+   of 32 px, away from depth edges), the cost is aggregated again along
+   sheared planes of that slant, and each pixel and slope keeps the lesser
+   of the two: a fronto-parallel window on a slanted floor holds many
+   disparities at once.
 5. **Winner and sub-step.** The slope of least aggregated cost, refined
    by a parabola through its neighbours. The confidence is the gap from
    the best cost to the best cost more than two steps away (0: flat or
@@ -99,6 +106,21 @@ TEXTURE_MIN = 1e-4
 FOCUS_RADIUS = 1
 #: Regularisation of the guided filter (guide normalised to [0, 1]).
 GUIDE_EPS = 1e-4
+#: Exponent of the correction of the noise that bilinear resampling averages away (:func:`_blur_scales`):
+#: 0 none, 1 as for white noise (which over-corrects real textures, whose fine detail the resampling
+#: also blurs).
+NOISE_CORRECTION = 0.5
+#: Side (px) of the blocks whose slant is read from the first estimate; a block is slanted where the median
+#: of its disparity gradient exceeds :data:`SLANT_MIN` (px per px) along its steeper axis, and its cost (and
+#: its neighbours') is aggregated again along planes of slant :data:`SLANT` that way (see
+#: :func:`_slanted_aggregate`).
+SLANT_BLOCK = 32
+SLANT_MIN = 0.02
+SLANT = 0.06
+#: A disparity gradient (px per px, after a 9 px box) above this is a depth edge, not a slant.
+SLANT_EDGE = 0.2
+#: The slanted aggregation searches this far (px) either side of the first estimate's sheared disparities.
+SLANT_REACH = 1.0
 
 
 @dataclass(frozen=True)
@@ -276,21 +298,50 @@ def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=No
     tiles, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
          np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count,
-         tiles, first, order, tolerance, within, out)
+         tiles, first, order, tolerance, within, _blur_scales(positions, slopes), out)
     return out
+
+
+def _interpolation_gain(shift):
+    """The factor by which bilinear interpolation at ``shift`` (px, along one axis) scales the variance of
+    white noise: ``(1 - f)^2 + f^2`` for the fraction ``f``."""
+    fraction = shift - np.floor(shift)
+    return (1.0 - fraction) ** 2 + fraction ** 2
+
+
+def _blur_scales(positions, slopes, power=None):
+    """``(m, n)`` float32: the factor of each view's squared differences at each slope that undoes the
+    noise the bilinear resampling averages away, to the power :data:`NOISE_CORRECTION`.
+
+    Resampling a view between pixels averages its noise: the difference
+    to the reference has the variance ``v = sum_u c_u^2 g_u`` (``c``: the
+    coefficients of the view and of the reference views, ``g``:
+    :func:`_interpolation_gain` of each), less than ``v0`` at whole-pixel
+    shifts. Left alone, a weak, noisy texture's cost is least at the
+    slopes that blur most (a comb of false minima one pixel per view step
+    apart on HCI antinous's floor); ``(v0 / v) ** power`` evens it out.
+    """
+    power = NOISE_CORRECTION if power is None else power
+    ref = _reference_views(positions)
+    gain = (_interpolation_gain(np.outer(slopes, positions[:, 0]))
+            * _interpolation_gain(np.outer(slopes, positions[:, 1])))
+    in_ref = np.zeros(len(positions))
+    in_ref[ref] = 1.0
+    own = 1.0 - 2.0 * in_ref / len(ref)  # a view's own coefficient squared, less its share of the reference
+    variance = gain * own + gain[:, ref].sum(axis=1, keepdims=True) / len(ref) ** 2
+    whole = own + 1.0 / len(ref)
+    scale = np.ones_like(variance)
+    alone = whole > 1e-9  # the only reference view differs from itself by nothing: left at 1
+    np.divide(whole[None], variance, out=scale, where=alone[None] & (variance > 1e-9))
+    return np.ascontiguousarray(scale ** power, np.float32)
 
 
 def _relative_cost(cost):
     """``min(log(c + eps) - min_s log(c + eps), cap)``; ``cap`` where not computed."""
-    finite = np.isfinite(cost)
-    logc = np.log(np.where(finite, cost, 1.0) + np.float32(COST_EPS)).astype(np.float32)
-    logc[~finite] = np.inf
-    best = logc.min(axis=0)
-    best[~np.isfinite(best)] = 0.0
-    rel = logc - best
-    np.minimum(rel, np.float32(COST_CAP), out=rel)
-    rel[~finite] = COST_CAP
-    return rel
+    cost = np.ascontiguousarray(cost, np.float32)
+    out = np.empty_like(cost)
+    _run("relative_costs", cost, np.float32(COST_EPS), np.float32(COST_CAP), out)
+    return out
 
 
 # -- aggregation ----------------------------------------------------------------------------
@@ -413,6 +464,119 @@ def _aggregate(relative, needed, guided, radius):
     return out
 
 
+def _block_slants(disparity, block=SLANT_BLOCK):
+    """``(gy, gx)``: the median disparity gradient (px per px) of every ``block`` x ``block`` block, over its
+    pixels away from depth edges (a gradient above :data:`SLANT_EDGE`, and 4 px around); 0 for a block
+    with less than half its pixels left."""
+    from scipy import ndimage
+
+    gy, gx = np.gradient(_box(disparity, 4).astype(np.float64))
+    edge = ndimage.binary_dilation(np.hypot(gy, gx) > SLANT_EDGE, iterations=4)
+    height, width = disparity.shape
+    n_y, n_x = -(-height // block), -(-width // block)
+
+    def medians(gradient):
+        padded = np.full((n_y * block, n_x * block), np.nan)
+        padded[:height, :width] = np.where(edge, np.nan, gradient)
+        per_block = padded.reshape(n_y, block, n_x, block).transpose(0, 2, 1, 3).reshape(n_y, n_x, -1)
+        enough = np.isfinite(per_block).sum(axis=-1) >= block * block // 2
+        per_block[~enough] = 0.0
+        return np.nanmedian(per_block, axis=-1)
+
+    return medians(gy), medians(gx)
+
+
+def _shears(disparity, block=SLANT_BLOCK):
+    """``{(slant_y, slant_x): blocks (n_y, n_x) bool}``: the slanted planes to aggregate along and where.
+
+    A block whose median gradient (:func:`_block_slants`) exceeds
+    :data:`SLANT_MIN` along its steeper axis asks for :data:`SLANT` that
+    way, for itself and its two neighbours that way (the first estimate
+    flattens a slant towards its ends, where the fronto-parallel windows
+    fail most).
+    """
+    gy, gx = _block_slants(disparity, block)
+    shears = {}
+    for i, j in np.argwhere(np.maximum(np.abs(gy), np.abs(gx)) >= SLANT_MIN):
+        along_y = abs(gy[i, j]) >= abs(gx[i, j])
+        slant = (math.copysign(SLANT, gy[i, j]), 0.0) if along_y else (0.0, math.copysign(SLANT, gx[i, j]))
+        blocks = shears.setdefault(slant, np.zeros(gy.shape, bool))
+        if along_y:
+            blocks[max(i - 1, 0):i + 2, j] = True
+        else:
+            blocks[i, max(j - 1, 0):j + 2] = True
+    return shears
+
+
+def _sheared_range(needed, tile, window, shear, centre):
+    """``(k_lo, k_hi)``: the sheared slope indices (``t - shear . (p - centre)``) that hold a computed cost
+    in ``window = (y0, y1, x0, x1)``, from the slopes every tile there needed; None if none."""
+    y0, y1, x0, x1 = window
+    k_lo, k_hi = np.inf, -np.inf
+    for ty in range(y0 // tile[0], -(-y1 // tile[0])):
+        for tx in range(x0 // tile[1], -(-x1 // tile[1])):
+            used = np.flatnonzero(needed[:, ty, tx])
+            if used.size == 0:
+                continue
+            ys = np.array([max(y0, ty * tile[0]), min(y1, (ty + 1) * tile[0]) - 1]) - y0 - centre[0]
+            xs = np.array([max(x0, tx * tile[1]), min(x1, (tx + 1) * tile[1]) - 1]) - x0 - centre[1]
+            shifts = shear[0] * ys[:, None] + shear[1] * xs[None, :]
+            k_lo = min(k_lo, used[0] - shifts.max())
+            k_hi = max(k_hi, used[-1] - shifts.min())
+    return None if k_lo > k_hi else (k_lo, k_hi)
+
+
+def _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, first, out, block=SLANT_BLOCK):
+    """Lower ``out`` (the fronto-parallel aggregation) to the guided filter of ``relative`` along planes of
+    ``slant`` (px per px, ``(y, x)``) where that is less, over the pixels of ``blocks``, for the slopes within
+    :data:`SLANT_REACH` of the plane of that slant through the first estimate (``first``, in slope indices);
+    returns the boxes ``(y0, y1, x0, x1)`` it may have changed.
+
+    A window of a strongly slanted surface holds many disparities: its
+    fronto-parallel aggregate is broad and its minimum drifts (HCI
+    antinous's floor, 0.06 px per px). Sheared along the slant
+    (:func:`_disparity_kernels.shear_slices`), filtered, and sheared back,
+    every pixel's cost is aggregated over the plane of that slant through
+    it; the least of the two costs per pixel and slope keeps fronto-parallel
+    surfaces (and edges) as they were.
+    """
+    from scipy import ndimage
+
+    m, height, width = relative.shape
+    tile = (-(-height // needed.shape[1]), -(-width // needed.shape[2]))
+    reach = 2 * radius + 2
+    shear = (slant[0] / step, slant[1] / step)
+    labels, _ = ndimage.label(blocks)
+    boxes = []
+    for index, (rows, cols) in enumerate(ndimage.find_objects(labels), start=1):
+        y0, y1 = rows.start * block, min(height, rows.stop * block)
+        x0, x1 = cols.start * block, min(width, cols.stop * block)
+        gy0, gx0 = max(0, y0 - reach) // 2 * 2, max(0, x0 - reach) // 2 * 2
+        gy1, gx1 = min(height, y1 + reach), min(width, x1 + reach)
+        centre = (0.5 * (gy1 - gy0 - 1), 0.5 * (gx1 - gx0 - 1))
+        span = _sheared_range(needed, tile, (gy0, gy1, gx0, gx1), shear, centre)
+        if span is None:
+            continue
+        # the sheared indices of the first estimate: nearly constant along a slant it half follows
+        ys, xs = np.ogrid[0:gy1 - gy0, 0:gx1 - gx0]
+        along = first[gy0:gy1, gx0:gx1] - shear[0] * (ys - centre[0]) - shear[1] * (xs - centre[1])
+        low, high = np.percentile(along, [5, 95])
+        around = SLANT_REACH / step
+        j0 = int(math.floor(max(span[0], low - around)))
+        top = int(math.ceil(min(span[1], high + around)))
+        if top <= j0:
+            continue
+        sheared = np.empty((top - j0 + 1, gy1 - gy0, gx1 - gx0), np.float32)
+        _run("shear_slices", relative, gy0, gx0, j0, shear[0], shear[1], centre[0], centre[1], COST_CAP, sheared)
+        filtered = guided.window(sheared, gy0, gx0)
+        inside = np.zeros(sheared.shape[1:], bool)
+        mine = np.repeat(np.repeat(labels[rows, cols] == index, block, 0), block, 1)
+        inside[y0 - gy0:y1 - gy0, x0 - gx0:x1 - gx0] = mine[:y1 - y0, :x1 - x0]
+        _run("unshear_min", filtered, j0, shear[0], shear[1], centre[0], centre[1], gy0, gx0, inside, 0, m - 1, out)
+        boxes.append((y0, y1, x0, x1))
+    return boxes
+
+
 def _winner(aggregated, slopes, step, cost=None):
     """Sub-step argmin of the aggregated cost and the confidence of the choice.
 
@@ -422,13 +586,14 @@ def _winner(aggregated, slopes, step, cost=None):
     the curve's sides: its vertex snaps to the grid), else the aggregated.
     """
     m = len(slopes)
-    best = np.argmin(aggregated, axis=0)
+    aggregated = np.ascontiguousarray(aggregated, np.float32)
+    best = np.empty(aggregated.shape[1:], np.int64)
+    least, second = np.empty(best.shape, np.float32), np.empty(best.shape, np.float32)
+    _run("winner_scan", aggregated, 2, best, least, second)
     inner = np.clip(best, 1, max(m - 2, 1))
     if cost is not None and m >= 3:
-        c1 = np.take_along_axis(aggregated, best[None], 0)[0]
         offset = np.empty(best.shape, np.float32)
-        _run("subslope_offsets", np.ascontiguousarray(cost, np.float32), np.ascontiguousarray(best, np.int64), 1,
-             offset)
+        _run("subslope_offsets", np.ascontiguousarray(cost, np.float32), best, 1, offset)
         disparity = slopes[best] + offset * step
     elif m >= 3:
         c0 = np.take_along_axis(aggregated, (inner - 1)[None], 0)[0]
@@ -440,11 +605,7 @@ def _winner(aggregated, slopes, step, cost=None):
         disparity = slopes[inner] + np.clip(offset, -0.5, 0.5) * step
     else:
         disparity = slopes[best].astype(np.float64)
-        c1 = np.take_along_axis(aggregated, best[None], 0)[0]
-    index = np.arange(m)[:, None, None]
-    far = np.abs(index - best[None]) > 2
-    second = np.where(far, aggregated, np.inf).min(axis=0)
-    gap = np.where(np.isfinite(second), second - np.take_along_axis(aggregated, best[None], 0)[0], 0.0)
+    gap = np.where(np.isfinite(second), second - least, 0.0)
     confidence = 1.0 - np.exp(-np.maximum(gap, 0.0) / (0.6 * COST_CAP))
     at_end = (best == 0) | (best == m - 1)
     confidence[at_end] *= 0.25
@@ -452,6 +613,13 @@ def _winner(aggregated, slopes, step, cost=None):
 
 
 # -- filling ---------------------------------------------------------------------------------
+
+def _filled(disparity, confidence, guide):
+    """``disparity`` where confident, an edge-aware smoothing of the confident values where not."""
+    smooth, _ = _smooth(disparity, confidence ** 2, guide, lam=30.0)
+    keep = confidence ** 2
+    return (keep * disparity + (1 - keep) * smooth).astype(np.float32)
+
 
 def _smooth(values, weights, guide, lam, sigma=0.02, iterations=3):
     """Edge-aware normalised smoothing of ``values`` with data ``weights`` (fast global smoother)."""
@@ -665,20 +833,34 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     seconds["sweep"] = time.perf_counter() - clock
     yield (3, 5, "sweep")
     clock = time.perf_counter()
-    aggregated = _aggregate(_relative_cost(cost), needed, _GuidedFilter(guide, radius), radius)
+    relative = _relative_cost(cost)
+    guided = _GuidedFilter(guide, radius)
+    aggregated = _aggregate(relative, needed, guided, radius)
     disparity, confidence = _winner(aggregated, slopes, step, cost)
+    first = _filled(disparity, confidence, guide) if len(slopes) >= 3 else None
+    shears = _shears(first) if first is not None else {}
+    for slant, blocks in shears.items():
+        first_index = (first - slopes[0]) / step
+        for y0, y1, x0, x1 in _slanted_aggregate(relative, needed, guided, radius, step, slant, blocks, first_index,
+                                                 aggregated):
+            # the winner again there (one pixel more around: the sub-step reads a 3x3 window of the cost)
+            ys, xs = slice(max(y0 - 1, 0), y1 + 1), slice(max(x0 - 1, 0), x1 + 1)
+            box_disparity, box_confidence = _winner(aggregated[:, ys, xs], slopes, step, cost[:, ys, xs])
+            inner = (slice(y0 - ys.start, y1 - ys.start), slice(x0 - xs.start, x1 - xs.start))
+            disparity[y0:y1, x0:x1] = box_disparity[inner]
+            confidence[y0:y1, x0:x1] = box_confidence[inner]
     seconds["aggregate"] = time.perf_counter() - clock
     yield (4, 5, "aggregation")
 
     clock = time.perf_counter()
-    if fill:
-        smooth, _ = _smooth(disparity, confidence ** 2, guide, lam=30.0)
-        keep = confidence ** 2
-        disparity = (keep * disparity + (1 - keep) * smooth).astype(np.float32)
+    if fill:  # nothing changed since the first estimate was filled unless a slant was aggregated
+        disparity = first if first is not None and not shears else _filled(disparity, confidence, guide)
     seconds["fill"] = time.perf_counter() - clock
     yield (5, 5, "fill")
     params = {"radius": radius, "step": step, "coarse_level": level, "n_slopes": len(slopes),
-              "evaluated_share": float(needed.mean()), "seconds": seconds}
+              "evaluated_share": float(needed.mean()),
+              "slanted_share": float(np.mean(np.logical_or.reduce(list(shears.values())))) if shears else 0.0,
+              "seconds": seconds}
     return DisparityEstimate(disparity, np.clip(confidence, 0, 1).astype(np.float32), (low, high), params)
 
 

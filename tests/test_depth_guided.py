@@ -8,8 +8,11 @@ from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import _inputs, metrics, presets
+from napari_lfalias.depth_guided import THRESHOLD, DepthGuide
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import reduction_options
+from napari_lfalias import render as render_module
+from napari_lfalias.render import SlopeRenderer
 from napari_lfalias.synthetic import brick_room, layered_scene, textureless_plane
 from napari_lfalias.synthetic.camera import capture
 
@@ -241,3 +244,49 @@ def test_an_occluder_outline_a_pixel_off_does_not_make_the_in_focus_background_w
     for region in (None, clean):
         gain = metrics.psnr(image, reference, mask=region) - metrics.psnr(naive, reference, mask=region)
         assert gain >= -0.1, ("overall" if region is None else "clean pixels", gain)
+
+
+# -- what is rendered: only what the score reads --------------------------------------------------------
+
+def test_where_the_views_agree_everywhere_nothing_is_rendered(monkeypatch):
+    scene = layered_scene([(1.0, "noise", None)], n_views=5, size=SIZE, seed=2)
+    lf = as_user_has_it(scene.lightfield)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("rendered although every pixel's views agree")
+
+    monkeypatch.setattr(SlopeRenderer, "render", refuse)
+    result = lfa.reduce_aliasing(lf, 1.0, disparity=scene.disparity)
+    np.testing.assert_array_equal(result.image, lfa.refocus(lf, 1.0))
+    assert not result.cv.any() and not result.level.any()
+
+
+def _scores_and_windows(scene, slope, monkeypatch):
+    """The guide's scores at ``slope``, and the windows of each composite it made (None: whole image)."""
+    windows = []
+    composite = render_module._composite
+
+    def spy(stack, layers, within=None):
+        windows.append(within)
+        return composite(stack, layers, within)
+
+    monkeypatch.setattr(render_module, "_composite", spy)
+    # an estimate is a little noisy: its edge renderings differ from the rendering everywhere it is not in focus
+    noisy = scene.disparity + np.random.default_rng(0).normal(0.0, 0.05, scene.disparity.shape)
+    guide = DepthGuide(scene.lightfield, noisy.astype(np.float32))
+    return guide.scores(slope, guide.naive(slope)), windows
+
+
+def test_edge_renderings_of_the_scored_pixels_only_give_the_scores_of_whole_ones(monkeypatch):
+    # back wall in focus: its views agree, so its score is 0 whatever the edge renderings say there
+    scene, slope = brick_room(n_views=5, size=192, seed=0), -4.0
+    monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", 0.0)  # never part of the image
+    whole, windows = _scores_and_windows(scene, slope, monkeypatch)
+    assert windows == [None] * 3
+    monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", np.inf)  # always, where the tiles leave some out
+    part, windows = _scores_and_windows(scene, slope, monkeypatch)
+    assert windows[0] is None and all(w is not None for w in windows[1:])
+    assert sum((y1 - y0) * (x1 - x0) for _, (y0, y1, x0, x1) in windows[1]) < 0.7 * whole.size
+    assert (whole > THRESHOLD).mean() > 0.01
+    np.testing.assert_allclose(part, whole, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(part > THRESHOLD, whole > THRESHOLD)

@@ -46,6 +46,7 @@ from scipy import ndimage
 from . import _validate
 from .errors import ParameterError
 from .lightfield import LightField
+from .metrics import TRUTH_BLUR
 
 __all__ = ["DepthGuide", "predicted_error", "MIN_ANGULAR_CV", "THRESHOLD"]
 
@@ -62,6 +63,9 @@ MIN_TRUST = 0.05
 #: edges moved this far either way: near a defocused occluder's outline the right blur depends on
 #: where the outline is, and an edge a pixel or two off must not make a correct naive pixel look aliased.
 EDGE_TOLERANCE_PX = 2
+#: How far (px) :func:`predicted_error` reads around a pixel: its Gaussian's radius (scipy's default
+#: truncation at 4 sigma).
+_ERROR_REACH = int(4.0 * TRUTH_BLUR + 0.5)
 
 
 def predicted_error(naive, rendered):
@@ -107,7 +111,8 @@ class DepthGuide:
     def __init__(self, lf, disparity=None, nearer="auto"):
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
-        self.lf, self._unit = _unit_scaled(lf.compute() if lf.is_lazy else lf)
+        self._data = lf.compute() if lf.is_lazy else lf
+        self.lf, self._unit = _unit_scaled(self._data)
         self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
         self._given = disparity
         self._estimate = None
@@ -154,35 +159,62 @@ class DepthGuide:
             self._at_slope[name] = make()
         return self._at_slope[name]
 
+    def naive(self, slope):
+        """The naive refocus (:func:`~napari_lfalias.refocus`) of the light field at ``slope`` (kept per
+        slope)."""
+        from .refocus import refocus
+
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "naive", lambda: refocus(self._data, slope))
+
     def rendering(self, slope):
         """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
         slope = _validate.finite_float("slope", slope)
-        return self._kept(slope, "rendering", lambda: self._render(slope, self.estimate[0]))
+        return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
     def edge_renderings(self, slope):
         """The rendered images at ``slope`` with the disparity's edges moved :data:`EDGE_TOLERANCE_PX`
-        outwards and inwards (the larger disparities grown, then shrunk); kept per slope."""
+        outwards and inwards (the larger disparities grown, then shrunk); kept per slope.
+
+        They are rendered only where :meth:`scores` reads them (within the
+        reach of :func:`predicted_error`'s blur of a pixel whose views
+        disagree and whose rendering is trusted); elsewhere they hold the
+        :meth:`rendering`.
+        """
         slope = _validate.finite_float("slope", slope)
         size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
-        return self._kept(slope, "edge renderings", lambda: [
-            self._render(slope, moved(self.estimate[0], size=size)).image
-            for moved in (ndimage.grey_dilation, ndimage.grey_erosion)])
 
-    def _render(self, slope, disparity):
+        def make():
+            main = self._raw_rendering(slope)
+            used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * _ERROR_REACH + 1)
+            return [self._in_data_units(self._render(slope, moved(self.estimate[0], size=size), within=used,
+                                                     elsewhere=main)).image
+                    for moved in (ndimage.grey_dilation, ndimage.grey_erosion)]
+
+        return self._kept(slope, "edge renderings", make)
+
+    def _raw_rendering(self, slope):
+        return self._kept(slope, "raw rendering", lambda: self._render(slope, self.estimate[0]))
+
+    def _render(self, slope, disparity, within=None, elsewhere=None):
+        """The rendering of the (unit-scaled) light field at ``slope`` for ``disparity``."""
         from ._kernels import MAX_SHIFT
-        from .render import render_dense_aperture
+        from .render import SlopeRenderer
 
         # the surfaces the views show in focus are in focus, whatever the estimate says
         in_focus = self._kept(slope, "in focus", lambda: self.focus_test(slope))
         # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
         rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
+        renderer = self._kept(slope, "renderer", lambda: SlopeRenderer(self.lf, rendered_slope))
         disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
         confidence = np.where(in_focus, np.float32(1), self.estimate[1])
-        rendering = render_dense_aperture(self.lf, rendered_slope, disparity, confidence,
-                                          larger_first=self.larger_first)
-        if self._unit != 1.0:
-            rendering = replace(rendering, image=rendering.image / np.float32(self._unit))
-        return rendering
+        return renderer.render(disparity, confidence, larger_first=self.larger_first, within=within,
+                               elsewhere=elsewhere)
+
+    def _in_data_units(self, rendering):
+        if self._unit == 1.0:
+            return rendering
+        return replace(rendering, image=rendering.image / np.float32(self._unit))
 
     @property
     def focus_test(self):
@@ -205,17 +237,26 @@ class DepthGuide:
 
         return self._kept(slope, "angular cv", make)
 
+    def _agree(self, slope):
+        """Where the views agree at ``slope`` (their score is 0 whatever the renderings say)."""
+        return self._kept(slope, "agree", lambda: self.angular_cv(slope) <= MIN_ANGULAR_CV)
+
+    def _scored_zero(self, slope):
+        """Where :meth:`scores` is 0 whatever the renderings say: the views agree, or the rendering is
+        not trusted."""
+        return self._agree(slope) | (self.rendering(slope).trust < MIN_TRUST)
+
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its
         :meth:`edge_renderings`), set to 0 where the views agree or the rendering is not trusted;
-        ``(Y, X)`` float32."""
-        rendering = self.rendering(slope)
-        score = predicted_error(naive, rendering.image)
+        ``(Y, X)`` float32. Where the views agree everywhere, nothing is rendered."""
+        slope = _validate.finite_float("slope", slope)
+        if self._agree(slope).all():
+            return np.zeros(self.lf.image_shape, np.float32)
+        score = predicted_error(naive, self.rendering(slope).image)
         for image in self.edge_renderings(slope):
             np.minimum(score, predicted_error(naive, image), out=score)
-        untrusted = rendering.trust < MIN_TRUST
-        agree = self.angular_cv(slope) <= MIN_ANGULAR_CV
-        score[untrusted | agree] = 0.0
+        score[self._scored_zero(slope)] = 0.0
         return score
 
     @staticmethod

@@ -8,7 +8,7 @@ from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import _inputs, metrics, presets
-from napari_lfalias.depth_guided import THRESHOLD, DepthGuide
+from napari_lfalias.depth_guided import EDGE_TOLERANCE_PX, THRESHOLD, DepthGuide, moved_edges
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import reduction_options
 from napari_lfalias import render as render_module
@@ -277,16 +277,33 @@ def _scores_and_windows(scene, slope, monkeypatch):
     return guide.scores(slope, guide.naive(slope)), windows
 
 
-def test_edge_renderings_of_the_scored_pixels_only_give_the_scores_of_whole_ones(monkeypatch):
-    # back wall in focus: its views agree, so its score is 0 whatever the edge renderings say there
-    scene, slope = brick_room(n_views=5, size=192, seed=0), -4.0
+@pytest.mark.parametrize("slope", [-4.0, 4.0])
+def test_edge_renderings_of_the_scored_pixels_only_give_the_scores_of_whole_ones(monkeypatch, slope):
+    scene = brick_room(n_views=5, size=192, seed=0)
     monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", 0.0)  # never part of the image
     whole, windows = _scores_and_windows(scene, slope, monkeypatch)
     assert windows == [None] * 3
     monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", np.inf)  # always, where the tiles leave some out
     part, windows = _scores_and_windows(scene, slope, monkeypatch)
-    assert windows[0] is None and all(w is not None for w in windows[1:])
-    assert sum((y1 - y0) * (x1 - x0) for _, (y0, y1, x0, x1) in windows[1]) < 0.7 * whole.size
+    assert len(windows) == 3 and windows[0] is None and all(w is not None for w in windows[1:])
+    assert all(sum((y1 - y0) * (x1 - x0) for _, (y0, y1, x0, x1) in w) < 0.7 * whole.size for w in windows[1:])
     assert (whole > THRESHOLD).mean() > 0.01
     np.testing.assert_allclose(part, whole, rtol=1e-5, atol=1e-6)
     np.testing.assert_array_equal(part > THRESHOLD, whole > THRESHOLD)
+
+
+def test_moved_edges_move_the_depth_edges_only():
+    y, x = np.mgrid[:64, :64]
+    slant = (0.01 * x + 0.002 * y).astype(np.float32)  # a slanted surface: no depth edge
+    cube = np.where((abs(y - 32) < 12) & (abs(x - 32) < 12), np.float32(3.0), slant)
+    grown, shrunk = moved_edges(cube, 1.0)
+    np.testing.assert_array_equal(moved_edges(slant, 1.0)[0], slant)
+    np.testing.assert_array_equal(moved_edges(slant, 1.0)[1], slant)
+    inside, outside = abs(y - 32) < 12, abs(x - 32) < 12
+    cube_mask = inside & outside
+    near = ndimage.binary_dilation(cube_mask, iterations=EDGE_TOLERANCE_PX, structure=np.ones((3, 3)))
+    np.testing.assert_array_equal(grown == 3.0, near)  # grown by the tolerance
+    far = ~ndimage.binary_dilation(near, iterations=EDGE_TOLERANCE_PX + 1, structure=np.ones((3, 3)))
+    np.testing.assert_array_equal(grown[far], slant[far])  # the slanted surface left as it is
+    np.testing.assert_array_equal(shrunk == 3.0, ndimage.binary_erosion(cube_mask, iterations=EDGE_TOLERANCE_PX,
+                                                                        structure=np.ones((3, 3))))

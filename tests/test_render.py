@@ -219,3 +219,30 @@ def test_renderings_at_one_slope_share_the_shifted_views_and_match_render_dense_
         shared = renderer.render(disparity)
         for name in ("image", "blurred_share", "trust"):
             np.testing.assert_array_equal(getattr(shared, name), getattr(alone, name))
+
+
+def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole_rendering():
+    scene = brick_room(n_views=5, size=160, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    rng = np.random.default_rng(1)
+    noisy = (scene.disparity + rng.normal(0.0, 0.05, scene.disparity.shape)).astype(np.float32)
+    main = renderer.layers(noisy)
+    rendering = renderer.composite(main)
+    moved = noisy.copy()
+    moved[52:56, 60:100] = 4.0  # the cube grown a few rows upwards along part of its top edge
+    layers = renderer.layers(moved, bins_of=main)
+    differs = layers.differs_from(main)
+    assert 0.0 < differs.mean() < 0.5
+    whole = renderer.composite(layers)
+    part = renderer.composite(layers, within=differs, elsewhere=rendering)
+    for name in ("image", "blurred_share", "trust"):
+        # everywhere: where the layers differ it was rendered, elsewhere the rendering is the same
+        np.testing.assert_allclose(getattr(part, name), getattr(whole, name), rtol=0, atol=ROUNDING)
+    assert np.abs(whole.image - rendering.image).max() > 0.05
+
+
+def test_layers_compare_only_in_the_same_bins():
+    scene = brick_room(n_views=4, size=32, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    with pytest.raises(ParameterError, match="bins"):
+        renderer.layers(scene.disparity).differs_from(renderer.layers(scene.disparity))

@@ -28,6 +28,10 @@ sparse refocus and what a dense aperture would record.
   rendering *and* from the renderings with the edges moved
   :data:`EDGE_TOLERANCE_PX` either way (chosen on the benchmark's tuning
   cases as the least that left none of them below the naive refocus).
+  Only depth edges move (:func:`moved_edges`: where the disparity meets
+  one at least a disparity bin away; a surface's own noise stays), and
+  the moved renderings share the rendering's bins, so they differ from it
+  only around those edges, and are rendered there only.
 - **Reduction.** Those pixels take the rendering, with a soft edge; every
   other pixel keeps the naive refocus exactly. A light field with nothing
   aliased comes back unchanged.
@@ -48,7 +52,7 @@ from .errors import ParameterError
 from .lightfield import LightField
 from .metrics import TRUTH_BLUR
 
-__all__ = ["DepthGuide", "predicted_error", "MIN_ANGULAR_CV", "THRESHOLD"]
+__all__ = ["DepthGuide", "moved_edges", "predicted_error", "MIN_ANGULAR_CV", "THRESHOLD"]
 
 #: Default threshold: the relative luminance difference a viewer perceives (the paper's T).
 THRESHOLD = 0.02
@@ -63,6 +67,29 @@ MIN_TRUST = 0.05
 #: edges moved this far either way: near a defocused occluder's outline the right blur depends on
 #: where the outline is, and an edge a pixel or two off must not make a correct naive pixel look aliased.
 EDGE_TOLERANCE_PX = 2
+def moved_edges(disparity, spacing):
+    """``disparity`` with its depth edges moved :data:`EDGE_TOLERANCE_PX` px outwards and inwards: the
+    larger disparities grown, then shrunk (grey dilation, erosion), where they meet disparities at
+    least a disparity bin (:data:`~napari_lfalias.render.BIN_PX` px of blur at view ``spacing``) away;
+    the rest of the map (a surface's own noise or slant) is left as it is.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> step = np.zeros((1, 9), np.float32)
+    >>> step[:, 5:] = 2.0
+    >>> grown, shrunk = moved_edges(step, 1.0)
+    >>> grown[0].tolist(), shrunk[0].tolist()
+    ([0.0, 0.0, 0.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0])
+    """
+    from .render import BIN_PX
+
+    size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
+    grown, shrunk = ndimage.grey_dilation(disparity, size=size), ndimage.grey_erosion(disparity, size=size)
+    edge = (grown - shrunk) * spacing >= BIN_PX
+    return np.where(edge, grown, disparity), np.where(edge, shrunk, disparity)
+
+
 #: How far (px) :func:`predicted_error` reads around a pixel: its Gaussian's radius (scipy's default
 #: truncation at 4 sigma).
 _ERROR_REACH = int(4.0 * TRUTH_BLUR + 0.5)
@@ -173,43 +200,59 @@ class DepthGuide:
         return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
     def edge_renderings(self, slope):
-        """The rendered images at ``slope`` with the disparity's edges moved :data:`EDGE_TOLERANCE_PX`
-        outwards and inwards (the larger disparities grown, then shrunk); kept per slope.
+        """The rendered images at ``slope`` with the disparity's depth edges moved :data:`EDGE_TOLERANCE_PX`
+        outwards and inwards (:func:`moved_edges`), in the bins of the :meth:`rendering`; kept per slope.
 
-        They are rendered only where :meth:`scores` reads them (within the
-        reach of :func:`predicted_error`'s blur of a pixel whose views
-        disagree and whose rendering is trusted); elsewhere they hold the
-        :meth:`rendering`.
+        They are rendered only where they differ from the :meth:`rendering`
+        and :meth:`scores` reads them (within the reach of
+        :func:`predicted_error`'s blur of a pixel whose views disagree and
+        whose rendering is trusted); elsewhere they hold the rendering.
         """
         slope = _validate.finite_float("slope", slope)
-        size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
 
         def make():
-            main = self._raw_rendering(slope)
+            main, renderer = self._layers(slope), self._renderer(slope)
+            rendering = self._raw_rendering(slope)
             used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * _ERROR_REACH + 1)
-            return [self._in_data_units(self._render(slope, moved(self.estimate[0], size=size), within=used,
-                                                     elsewhere=main)).image
-                    for moved in (ndimage.grey_dilation, ndimage.grey_erosion)]
+            if not used.any():
+                return [self.rendering(slope).image] * 2
+            images = []
+            for moved in moved_edges(self.estimate[0], renderer.spacing):
+                layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
+                                         larger_first=self.larger_first, bins_of=main)
+                within = used & layers.differs_from(main)
+                images.append(self._in_data_units(renderer.composite(layers, within=within,
+                                                                     elsewhere=rendering)).image)
+            return images
 
         return self._kept(slope, "edge renderings", make)
 
     def _raw_rendering(self, slope):
-        return self._kept(slope, "raw rendering", lambda: self._render(slope, self.estimate[0]))
+        return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))
 
-    def _render(self, slope, disparity, within=None, elsewhere=None):
-        """The rendering of the (unit-scaled) light field at ``slope`` for ``disparity``."""
+    def _layers(self, slope):
+        """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
+        return self._kept(slope, "layers", lambda: self._renderer(slope).layers(
+            self._in_focus_at(slope, self.estimate[0]), self._confidence_at(slope), larger_first=self.larger_first))
+
+    def _renderer(self, slope):
+        """The unit-scaled light field's :class:`~napari_lfalias.render.SlopeRenderer` at ``slope``."""
         from ._kernels import MAX_SHIFT
         from .render import SlopeRenderer
 
-        # the surfaces the views show in focus are in focus, whatever the estimate says
-        in_focus = self._kept(slope, "in focus", lambda: self.focus_test(slope))
         # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
         rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
-        renderer = self._kept(slope, "renderer", lambda: SlopeRenderer(self.lf, rendered_slope))
-        disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
-        confidence = np.where(in_focus, np.float32(1), self.estimate[1])
-        return renderer.render(disparity, confidence, larger_first=self.larger_first, within=within,
-                               elsewhere=elsewhere)
+        return self._kept(slope, "renderer", lambda: SlopeRenderer(self.lf, rendered_slope))
+
+    def _in_focus(self, slope):
+        """The surfaces the views show in focus at ``slope``: in focus, whatever the estimate says."""
+        return self._kept(slope, "in focus", lambda: self.focus_test(slope))
+
+    def _in_focus_at(self, slope, disparity):
+        return np.where(self._in_focus(slope), np.float32(self._renderer(slope).slope), disparity)
+
+    def _confidence_at(self, slope):
+        return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])
 
     def _in_data_units(self, rendering):
         if self._unit == 1.0:

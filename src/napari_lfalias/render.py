@@ -55,7 +55,7 @@ from .errors import ParameterError
 from .lightfield import LightField
 from .refocus import _KERNEL_LOCK, refocus, shift_views
 
-__all__ = ["antialiased_refocus", "Rendering", "render_dense_aperture", "SlopeRenderer", "BIN_PX"]
+__all__ = ["antialiased_refocus", "Rendering", "render_dense_aperture", "SlopeRenderer", "Layers", "BIN_PX"]
 
 #: Largest spread (px) of blur widths within one disparity bin.
 BIN_PX = 1.0
@@ -256,9 +256,17 @@ class SlopeRenderer:
         :class:`Rendering` at the same slope. Where rendered, the result
         equals the whole rendering to float rounding.
         """
-        if within is not None and elsewhere is None:
-            raise ParameterError("render(within=...) needs elsewhere=, the Rendering its other pixels come from")
-        slope, spacing, stack = self.slope, self.spacing, self.stack
+        layers = self.layers(disparity, confidence, larger_first=larger_first, max_bins=max_bins)
+        return self.composite(layers, within=within, elsewhere=elsewhere)
+
+    def layers(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, bins_of=None):
+        """The :class:`Layers` of ``disparity``: what :meth:`composite` renders.
+
+        ``bins_of``: other :class:`Layers` at this slope whose disparity
+        bins (their edges and blur widths) to use; by default the bins are
+        made for ``disparity`` (at most ``max_bins``).
+        """
+        slope, spacing = self.slope, self.spacing
         disparity = np.ascontiguousarray(disparity, np.float64)
         confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
         confidence = np.ascontiguousarray(confidence, np.float32)
@@ -272,27 +280,37 @@ class SlopeRenderer:
         warped_conf = np.empty((n,) + shape, np.float32)
         _run("warp_disparity", narrow if exact else disparity, confidence, self.positions, bool(larger_first),
              warped, warped_conf)
-        edges, centres, taps = _bins(disparity, slope, spacing, max_bins)
+        plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
+        edges, centres, taps = plan
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
         _run("shifted_bins", warped, warped_conf, self.positions, slope, edges, bins, sample_conf)
         del warped, warped_conf
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders)
-        layers = (bins, sample_conf, order, occluders, taps, fill, has_fill)
-        windows = None if within is None else _windows(within, _reach(taps), self.TILE, self.MOST_PARTIAL)
-        num, den, blurred, trust = _composite(stack, layers, windows)
+        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill)
+
+    def composite(self, layers, *, within=None, elsewhere=None):
+        """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
+        :meth:`render`."""
+        if within is not None and elsewhere is None:
+            raise ParameterError("render(within=...) needs elsewhere=, the Rendering its other pixels come from")
+        if within is not None and not within.any():
+            return elsewhere
+        slope, spacing = self.slope, self.spacing
+        windows = None if within is None else _windows(within, layers.reach, self.TILE, self.MOST_PARTIAL)
+        num, den, blurred, trust = _composite(self.stack, layers, windows)
         seen = den > 1e-6
         image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
         share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
         trust = np.divide(trust, den, out=np.zeros_like(den), where=seen)
-        in_focus = (np.abs(disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
+        in_focus = (np.abs(layers.disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
         rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
                               share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
         if windows is None:
             return rendering
-        done = np.zeros(shape, bool)
+        done = np.zeros(den.shape, bool)
         for _, (y0, y1, x0, x1) in windows:
             done[y0:y1, x0:x1] = True
         return Rendering(*(np.where(done[..., None] if part.ndim == 3 else done, part, other)
@@ -300,12 +318,54 @@ class SlopeRenderer:
                                                   (elsewhere.image, elsewhere.blurred_share, elsewhere.trust))))
 
 
-def _reach(taps):
-    """How far (px) the blur of any bin reaches: a composited pixel depends on the samples this close."""
-    blurred = np.any(taps != 0, axis=1)
-    if not blurred.any():
-        return 0
-    return int(max(taps[blurred, 0].max(), taps[blurred, 2].max())) + 1
+@dataclass(frozen=True)
+class Layers:
+    """A disparity map made ready to composite at one slope (:meth:`SlopeRenderer.layers`).
+
+    Attributes
+    ----------
+    disparity : ndarray (Y, X) float64
+        The disparity, occluding edges given to the side sharper at the slope.
+    bins : tuple
+        The disparity bins: edges ``(K + 1,)``, centres ``(K,)``, box taps ``(K, 4)``.
+    view_bins, view_confidence : ndarray (n, Y, X)
+        The bin (int16, -1: none) and confidence of the surface each view's shifted sample shows.
+    order, occluders : ndarray (K,) int64
+        The bins front to back; for each, the last position in ``order`` of a bin that hides it.
+    fill, has_fill : ndarray (Y, X, C) float32, (Y, X) bool
+        The in-focus background behind occluders' edges.
+    """
+
+    disparity: np.ndarray
+    bins: tuple
+    view_bins: np.ndarray
+    view_confidence: np.ndarray
+    order: np.ndarray
+    occluders: np.ndarray
+    fill: np.ndarray
+    has_fill: np.ndarray
+
+    @property
+    def reach(self):
+        """How far (px) the blur of any bin reaches: a composited pixel depends on the samples this close."""
+        taps = self.bins[2]
+        blurred = np.any(taps != 0, axis=1)
+        if not blurred.any():
+            return 0
+        return int(max(taps[blurred, 0].max(), taps[blurred, 2].max())) + 1
+
+    def differs_from(self, other):
+        """``(Y, X)`` bool: the pixels whose rendering may differ from that of ``other`` (layers with the
+        same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
+        if self.bins is not other.bins:
+            raise ParameterError("Layers.differs_from compares layers with the same bins (layers(bins_of=...))")
+        inputs = np.any(self.view_bins != other.view_bins, axis=0)
+        inputs |= np.any(self.view_confidence != other.view_confidence, axis=0)
+        inputs |= self.has_fill != other.has_fill
+        inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
+        reach = self.reach
+        grown = ndimage.maximum_filter(inputs, size=2 * reach + 1) if reach else inputs
+        return grown | (self.disparity != other.disparity)
 
 
 def _windows(within, margin, tile, most):
@@ -337,10 +397,11 @@ def _windows(within, margin, tile, most):
 
 
 def _composite(stack, layers, windows=None):
-    """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X) of every view's bins
+    """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X) of :class:`Layers`
     (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with ``windows``
     (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
-    bins, sample_conf, order, occluders, taps, fill, has_fill = layers
+    bins, sample_conf, fill, has_fill = layers.view_bins, layers.view_confidence, layers.fill, layers.has_fill
+    order, occluders, taps = layers.order, layers.occluders, layers.bins[2]
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]

@@ -211,10 +211,9 @@ class SlopeRenderer:
 
     Parameters
     ----------
-    lf : LightField
-        The light field (sample weights are honoured).
-    slope : float
-        Disparity in focus.
+    lf, slope
+        The light field and the disparity every rendering brings into
+        focus (as in :func:`render_dense_aperture`).
 
     Examples
     --------

@@ -211,11 +211,11 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            main, renderer = self._layers(slope), self._renderer(slope)
             rendering = self._raw_rendering(slope)
             used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * _ERROR_REACH + 1)
             if not used.any():
                 return [self.rendering(slope).image] * 2
+            main, renderer = self._layers(slope), self._renderer(slope)
             images = []
             for moved in moved_edges(self.estimate[0], renderer.spacing):
                 layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
@@ -225,7 +225,11 @@ class DepthGuide:
                                                                      elsewhere=rendering)).image)
             return images
 
-        return self._kept(slope, "edge renderings", make)
+        try:
+            return self._kept(slope, "edge renderings", make)
+        finally:  # the shifted views and the bins, the largest arrays, are not needed any more
+            for name in ("renderer", "layers"):
+                self._at_slope.pop(name, None)
 
     def _raw_rendering(self, slope):
         return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))

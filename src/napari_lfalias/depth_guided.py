@@ -212,7 +212,7 @@ class DepthGuide:
 
         def make():
             rendering = self._raw_rendering(slope)
-            used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * _ERROR_REACH + 1)
+            used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * self._score_reach(slope) + 1)
             if not used.any():
                 return [self.rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
@@ -230,6 +230,11 @@ class DepthGuide:
         finally:  # the shifted views and the bins, the largest arrays, are not needed any more
             for name in ("renderer", "layers"):
                 self._at_slope.pop(name, None)
+
+    def _score_reach(self, slope):
+        """How far (px) around a pixel :meth:`scores` reads the renderings (the edge renderings must be
+        exact that far around every pixel it scores)."""
+        return _ERROR_REACH
 
     def _raw_rendering(self, slope):
         return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))

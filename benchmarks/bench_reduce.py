@@ -45,7 +45,7 @@ from napari_lfalias.baselines import view_spacing
 from napari_lfalias.reduce import fuse_levels, levels_from_disparity
 from napari_lfalias.synthetic import brick_room
 
-from _harness import aliasing_truth, median_iqr, memory_floor, table, timings, write_report
+from _harness import aliasing_truth, kept_notes, median_iqr, memory_floor, table, timings, write_report
 
 HCI = Path(__file__).resolve().parents[2] / "shared" / "lf_data" / "hci_antinous"
 LOW_T = 0.005
@@ -199,6 +199,7 @@ def main(argv=None):
     print("speed", flush=True)
     sections.append(f"## Speed (8x8x{args.size}x{args.size}x3, median of {args.repeats})\n\n"
                     + speed(args.size, args.repeats))
+    sections.append("## Notes (written by hand, kept when re-run)\n\n" + kept_notes(out))
     write_report(out, "Aliasing reduction against the baselines (the paper's Figure 6, measured)",
                  ["## Accuracy"] + sections)
     print(f"wrote {out}")

@@ -8,9 +8,12 @@ from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import _inputs, metrics, presets
-from napari_lfalias.depth_guided import THRESHOLD, DepthGuide, predicted_error, with_local_mean_of
+from napari_lfalias.depth_guided import (EDGE_TOLERANCE_PX, THRESHOLD, DepthGuide, moved_edges, predicted_error,
+                                         with_local_mean_of)
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import reduction_options
+from napari_lfalias import render as render_module
+from napari_lfalias.render import SlopeRenderer
 from napari_lfalias.synthetic import brick_room, layered_scene, textureless_plane
 from napari_lfalias.synthetic.camera import capture
 
@@ -267,3 +270,66 @@ def test_with_local_mean_of_keeps_what_differs_within_the_window():
     right = (slice(None), slice(10, None))
     assert abs(float(np.mean((out - naive)[right]))) < 0.01  # the offset of 0.2 is gone ...
     np.testing.assert_allclose(np.std((out - naive)[right]), np.std((image - naive)[right]), rtol=0.15)  # ... not the noise
+
+
+# -- what is rendered: only what the score reads --------------------------------------------------------
+
+def test_where_the_views_agree_everywhere_nothing_is_rendered(monkeypatch):
+    scene = layered_scene([(1.0, "noise", None)], n_views=5, size=SIZE, seed=2)
+    lf = as_user_has_it(scene.lightfield)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("rendered although every pixel's views agree")
+
+    monkeypatch.setattr(SlopeRenderer, "render", refuse)
+    result = lfa.reduce_aliasing(lf, 1.0, disparity=scene.disparity)
+    np.testing.assert_array_equal(result.image, lfa.refocus(lf, 1.0))
+    assert not result.cv.any() and not result.level.any()
+
+
+def _scores_and_windows(scene, slope, monkeypatch):
+    """The guide's scores at ``slope``, and the windows of each composite it made (None: whole image)."""
+    windows = []
+    composite = render_module._composite
+
+    def spy(stack, layers, within=None):
+        windows.append(within)
+        return composite(stack, layers, within)
+
+    monkeypatch.setattr(render_module, "_composite", spy)
+    # an estimate is a little noisy: its edge renderings differ from the rendering everywhere it is not in focus
+    noisy = scene.disparity + np.random.default_rng(0).normal(0.0, 0.05, scene.disparity.shape)
+    guide = DepthGuide(scene.lightfield, noisy.astype(np.float32))
+    return guide.scores(slope, guide.naive(slope)), windows
+
+
+@pytest.mark.parametrize("slope", [-4.0, 4.0])
+def test_edge_renderings_of_the_scored_pixels_only_give_the_scores_of_whole_ones(monkeypatch, slope):
+    scene = brick_room(n_views=5, size=192, seed=0)
+    monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", 0.0)  # never part of the image
+    whole, windows = _scores_and_windows(scene, slope, monkeypatch)
+    assert windows == [None] * 3
+    monkeypatch.setattr(SlopeRenderer, "MOST_PARTIAL", np.inf)  # always, where the tiles leave some out
+    part, windows = _scores_and_windows(scene, slope, monkeypatch)
+    assert len(windows) == 3 and windows[0] is None and all(w is not None for w in windows[1:])
+    assert all(sum((y1 - y0) * (x1 - x0) for _, (y0, y1, x0, x1) in w) < 0.7 * whole.size for w in windows[1:])
+    assert (whole > THRESHOLD).mean() > 0.01
+    np.testing.assert_allclose(part, whole, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(part > THRESHOLD, whole > THRESHOLD)
+
+
+def test_moved_edges_move_the_depth_edges_only():
+    y, x = np.mgrid[:64, :64]
+    slant = (0.01 * x + 0.002 * y).astype(np.float32)  # a slanted surface: no depth edge
+    cube = np.where((abs(y - 32) < 12) & (abs(x - 32) < 12), np.float32(3.0), slant)
+    grown, shrunk = moved_edges(cube, 1.0)
+    np.testing.assert_array_equal(moved_edges(slant, 1.0)[0], slant)
+    np.testing.assert_array_equal(moved_edges(slant, 1.0)[1], slant)
+    inside, outside = abs(y - 32) < 12, abs(x - 32) < 12
+    cube_mask = inside & outside
+    near = ndimage.binary_dilation(cube_mask, iterations=EDGE_TOLERANCE_PX, structure=np.ones((3, 3)))
+    np.testing.assert_array_equal(grown == 3.0, near)  # grown by the tolerance
+    far = ~ndimage.binary_dilation(near, iterations=EDGE_TOLERANCE_PX + 1, structure=np.ones((3, 3)))
+    np.testing.assert_array_equal(grown[far], slant[far])  # the slanted surface left as it is
+    np.testing.assert_array_equal(shrunk == 3.0, ndimage.binary_erosion(cube_mask, iterations=EDGE_TOLERANCE_PX,
+                                                                        structure=np.ones((3, 3))))

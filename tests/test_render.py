@@ -15,6 +15,7 @@ import napari_lfalias as lfa
 from napari_lfalias import metrics
 from napari_lfalias.disparity import DisparityEstimate
 from napari_lfalias.errors import LightFieldError, ParameterError
+from napari_lfalias.render import SlopeRenderer, render_dense_aperture
 from napari_lfalias.synthetic import brick_room, layered_scene
 from napari_lfalias.synthetic.camera import capture
 
@@ -204,3 +205,66 @@ def test_the_light_field_and_the_disparity_given_are_not_modified():
     after = [lf.data, lf.weights, lf.positions, disparity, estimate.disparity, estimate.confidence]
     for old, new in zip(before, after):
         np.testing.assert_array_equal(new, old)
+
+
+# -- rendering part of the image ---------------------------------------------------------------------
+
+def test_rendering_some_pixels_gives_the_whole_renderings_values_there():
+    scene = brick_room(n_views=5, size=128, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    whole = renderer.render(scene.disparity)
+    in_focus = renderer.render(np.full(scene.disparity.shape, 4.0))  # where the part takes its other pixels
+    within = np.zeros(scene.disparity.shape, bool)
+    within[30:50, 60:90] = True  # the cube's top edge: the blurred wall above it, the cube in focus below
+    assert 0.3 < whole.blurred_share[within].mean() < 0.7
+    part = renderer.render(scene.disparity, within=within, elsewhere=in_focus)
+    for name in ("image", "blurred_share", "trust"):
+        np.testing.assert_allclose(getattr(part, name)[within], getattr(whole, name)[within], rtol=0, atol=ROUNDING)
+    # the pixels far from `within` were not rendered: they are the other rendering's
+    far = ~ndimage.maximum_filter(within, size=2 * (SlopeRenderer.TILE + 16) + 1)
+    assert far.mean() > 0.2
+    np.testing.assert_array_equal(part.image[far], in_focus.image[far])
+    assert np.abs(whole.image[far] - in_focus.image[far]).max() > 0.05
+
+
+def test_rendering_some_pixels_needs_the_rendering_of_the_others():
+    scene = brick_room(n_views=4, size=32, seed=0)
+    with pytest.raises(ParameterError, match="elsewhere"):
+        SlopeRenderer(scene.lightfield, 4.0).render(scene.disparity, within=np.ones((32, 32), bool))
+
+
+def test_renderings_at_one_slope_share_the_shifted_views_and_match_render_dense_aperture():
+    scene = brick_room(n_views=4, size=48, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, -4.0)
+    for disparity in (scene.disparity, ndimage.grey_dilation(scene.disparity, size=(5, 5))):
+        alone = render_dense_aperture(scene.lightfield, -4.0, disparity)
+        shared = renderer.render(disparity)
+        for name in ("image", "blurred_share", "trust"):
+            np.testing.assert_array_equal(getattr(shared, name), getattr(alone, name))
+
+
+def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole_rendering():
+    scene = brick_room(n_views=5, size=160, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    rng = np.random.default_rng(1)
+    noisy = (scene.disparity + rng.normal(0.0, 0.05, scene.disparity.shape)).astype(np.float32)
+    main = renderer.layers(noisy)
+    rendering = renderer.composite(main)
+    moved = noisy.copy()
+    moved[52:56, 60:100] = 4.0  # the cube grown a few rows upwards along part of its top edge
+    layers = renderer.layers(moved, bins_of=main)
+    differs = layers.differs_from(main)
+    assert 0.0 < differs.mean() < 0.5
+    whole = renderer.composite(layers)
+    part = renderer.composite(layers, within=differs, elsewhere=rendering)
+    for name in ("image", "blurred_share", "trust"):
+        # everywhere: where the layers differ it was rendered, elsewhere the rendering is the same
+        np.testing.assert_allclose(getattr(part, name), getattr(whole, name), rtol=0, atol=ROUNDING)
+    assert np.abs(whole.image - rendering.image).max() > 0.05
+
+
+def test_layers_compare_only_in_the_same_bins():
+    scene = brick_room(n_views=4, size=32, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    with pytest.raises(ParameterError, match="bins"):
+        renderer.layers(scene.disparity).differs_from(renderer.layers(scene.disparity))

@@ -7,6 +7,8 @@
 - ``shifted_bins``: for every view, the disparity bin of the surface its
   sample at ``p + slope * q_i`` shows (nearest pixel), and the confidence
   there; -1 outside the view.
+- ``in_focus_colour``: the colour of the in-focus background the views
+  show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
   disparity bins; each bin (premultiplied colour, coverage, confidence)
   is blurred by its own box (the footprint of one view's cell of the
@@ -21,7 +23,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image
 
-__all__ = ["warp_disparity", "shifted_bins", "composite_views"]
+__all__ = ["warp_disparity", "shifted_bins", "in_focus_colour", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -32,36 +34,45 @@ def _nearer(a, b, larger_first):
 @njit(cache=True)
 def _fill_holes(values, confidence, filled, larger_first):
     """Fill the unfilled pixels of every row from the nearer filled neighbour that is farther away in depth
-    (a disocclusion shows the background); rows with nothing filled stay as they are."""
+    (a disocclusion shows the background); rows with nothing filled stay as they are. Returns how many
+    pixels stay unfilled.
+
+    A run of unfilled pixels takes one value: that of the filled pixel on its left, or on its right where
+    the left one is nearer (or where there is none on the left).
+    """
     n_rows, n_cols = values.shape
+    unfilled = 0
     for y in range(n_rows):
-        for x in range(n_cols):
+        x = 0
+        while x < n_cols:
             if filled[y, x]:
+                x += 1
                 continue
-            left = -1
-            for k in range(x - 1, -1, -1):
-                if filled[y, k]:
-                    left = k
-                    break
-            right = -1
-            for k in range(x + 1, n_cols):
-                if filled[y, k]:
-                    right = k
-                    break
+            end = x + 1  # the run is [x, end)
+            while end < n_cols and not filled[y, end]:
+                end += 1
+            left = x - 1
+            right = end if end < n_cols else -1
             if left < 0 and right < 0:
+                unfilled += end - x
+                x = end
                 continue
             pick = left
             if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
                 pick = right
-            values[y, x] = values[y, pick]
-            confidence[y, x] = confidence[y, pick]
-            filled[y, x] = True
+            for k in range(x, end):
+                values[y, k] = values[y, pick]
+                confidence[y, k] = confidence[y, pick]
+                filled[y, k] = True
+            x = end
+    return unfilled
 
 
 @njit(cache=True, parallel=True)
 def warp_disparity(disparity, confidence, positions, larger_first, out_disparity, out_confidence):
     """Forward-warp ``disparity`` and ``confidence (Y, X)`` into every view ``(n, Y, X)``; holes are filled
-    along rows, then along columns (:func:`_fill_holes`); a view nothing lands in stays NaN."""
+    along rows, then, where a row had nothing to fill from, along columns (:func:`_fill_holes`); a view
+    nothing lands in stays NaN. ``out_disparity`` may be float32 where the disparities are float32 values."""
     n = positions.shape[0]
     n_rows, n_cols = disparity.shape
     for i in prange(n):
@@ -89,8 +100,8 @@ def warp_disparity(disparity, confidence, positions, larger_first, out_disparity
                             out_d[yy, xx] = d
                             out_c[yy, xx] = confidence[y, x]
                             filled[yy, xx] = True
-        _fill_holes(out_d, out_c, filled, larger_first)
-        _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+        if _fill_holes(out_d, out_c, filled, larger_first) > 0:
+            _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
 
 
 @njit(cache=True, parallel=True)
@@ -121,6 +132,36 @@ def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, o
                 b = np.searchsorted(edges, d, side="right") - 1
                 out_bins[i, y, x] = min(max(b, 0), n_bins - 1)
                 out_confidence[i, y, x] = warped_confidence[i, sy, sx]
+
+
+@njit(cache=True, parallel=True)
+def in_focus_colour(values, weights, bins, shows, fill_share, out_fill, out_has_fill):
+    """The weighted mean colour ``(Y, X, C)`` of the samples whose bin ``shows`` an in-focus background,
+    and ``(Y, X)`` whether they hold at least ``fill_share`` of the pixel's whole sample weight (the
+    colour is the plain weighted sum elsewhere). Sums run over the views in order, in float32."""
+    n, n_rows, n_cols = bins.shape
+    n_ch = values.shape[3]
+    share = np.float32(fill_share)
+    least = np.float32(1e-6)
+    for y in prange(n_rows):
+        colour = np.zeros(n_ch, np.float32)
+        for x in range(n_cols):
+            colour[:] = 0.0
+            total = np.float32(0.0)
+            every = np.float32(0.0)
+            for i in range(n):
+                w = weights[i, y, x]
+                every += w
+                k = bins[i, y, x]
+                if k < 0 or not shows[k] or not w > 0.0:
+                    continue
+                total += w
+                for c in range(n_ch):
+                    colour[c] += w * values[i, y, x, c]
+            has = total >= share * max(every, least)
+            out_has_fill[y, x] = has
+            for c in range(n_ch):
+                out_fill[y, x, c] = colour[c] / total if has else colour[c]
 
 
 @njit(cache=True)

@@ -28,6 +28,10 @@ sparse refocus and what a dense aperture would record.
   rendering *and* from the renderings with the edges moved
   :data:`EDGE_TOLERANCE_PX` either way (chosen on the benchmark's tuning
   cases as the least that left none of them below the naive refocus).
+  Only depth edges move (:func:`moved_edges`: where the disparity meets
+  one at least a disparity bin away; a surface's own noise stays), and
+  the moved renderings share the rendering's bins, so they differ from it
+  only around those edges, and are rendered there only.
   The naive refocus and a dense aperture record the same light through
   the same aperture and differ only in how they sample it, so their local
   means over a few ghost spacings (``|d - slope|`` times the view
@@ -54,8 +58,9 @@ from scipy import ndimage
 from . import _validate
 from .errors import ParameterError
 from .lightfield import LightField
+from .metrics import TRUTH_BLUR
 
-__all__ = ["DepthGuide", "predicted_error", "with_local_mean_of", "MIN_ANGULAR_CV", "THRESHOLD"]
+__all__ = ["DepthGuide", "moved_edges", "predicted_error", "with_local_mean_of", "MIN_ANGULAR_CV", "THRESHOLD"]
 
 #: Default threshold: the relative luminance difference a viewer perceives (the paper's T).
 THRESHOLD = 0.02
@@ -74,6 +79,32 @@ EDGE_TOLERANCE_PX = 2
 #: detection compares the naive refocus with the rendering after making it so (module notes). One
 #: spacing is a whole period of the ghosts; two keep the mean clear of the rounding of the window.
 CONSISTENCY_PERIODS = 2
+def moved_edges(disparity, spacing):
+    """``disparity`` with its depth edges moved :data:`EDGE_TOLERANCE_PX` px outwards and inwards: the
+    larger disparities grown, then shrunk (grey dilation, erosion), where they meet disparities at
+    least a disparity bin (:data:`~napari_lfalias.render.BIN_PX` px of blur at view ``spacing``) away;
+    the rest of the map (a surface's own noise or slant) is left as it is.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> step = np.zeros((1, 9), np.float32)
+    >>> step[:, 5:] = 2.0
+    >>> grown, shrunk = moved_edges(step, 1.0)
+    >>> grown[0].tolist(), shrunk[0].tolist()
+    ([0.0, 0.0, 0.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0])
+    """
+    from .render import BIN_PX
+
+    size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
+    grown, shrunk = ndimage.grey_dilation(disparity, size=size), ndimage.grey_erosion(disparity, size=size)
+    edge = (grown - shrunk) * spacing >= BIN_PX
+    return np.where(edge, grown, disparity), np.where(edge, shrunk, disparity)
+
+
+#: How far (px) :func:`predicted_error` reads around a pixel: its Gaussian's radius (scipy's default
+#: truncation at 4 sigma).
+_ERROR_REACH = int(4.0 * TRUTH_BLUR + 0.5)
 
 
 def predicted_error(naive, rendered):
@@ -119,7 +150,8 @@ class DepthGuide:
     def __init__(self, lf, disparity=None, nearer="auto"):
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
-        self.lf, self._unit = _unit_scaled(lf.compute() if lf.is_lazy else lf)
+        self._data = lf.compute() if lf.is_lazy else lf
+        self.lf, self._unit = _unit_scaled(self._data)
         self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
         self._given = disparity
         self._estimate = None
@@ -166,35 +198,88 @@ class DepthGuide:
             self._at_slope[name] = make()
         return self._at_slope[name]
 
+    def naive(self, slope):
+        """The naive refocus (:func:`~napari_lfalias.refocus`) of the light field at ``slope`` (kept per
+        slope)."""
+        from .refocus import refocus
+
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "naive", lambda: refocus(self._data, slope))
+
     def rendering(self, slope):
         """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
         slope = _validate.finite_float("slope", slope)
-        return self._kept(slope, "rendering", lambda: self._render(slope, self.estimate[0]))
+        return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
     def edge_renderings(self, slope):
-        """The rendered images at ``slope`` with the disparity's edges moved :data:`EDGE_TOLERANCE_PX`
-        outwards and inwards (the larger disparities grown, then shrunk); kept per slope."""
+        """The rendered images at ``slope`` with the disparity's depth edges moved :data:`EDGE_TOLERANCE_PX`
+        outwards and inwards (:func:`moved_edges`), in the bins of the :meth:`rendering`; kept per slope.
+
+        They are rendered only where they differ from the :meth:`rendering`
+        and :meth:`scores` reads them (within the reach of
+        :func:`predicted_error`'s blur of a pixel whose views disagree and
+        whose rendering is trusted); elsewhere they hold the rendering.
+        """
         slope = _validate.finite_float("slope", slope)
-        size = (2 * EDGE_TOLERANCE_PX + 1,) * 2
-        return self._kept(slope, "edge renderings", lambda: [
-            self._render(slope, moved(self.estimate[0], size=size)).image
-            for moved in (ndimage.grey_dilation, ndimage.grey_erosion)])
 
-    def _render(self, slope, disparity):
+        def make():
+            rendering = self._raw_rendering(slope)
+            used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * self._score_reach(slope) + 1)
+            if not used.any():
+                return [self.rendering(slope).image] * 2
+            main, renderer = self._layers(slope), self._renderer(slope)
+            images = []
+            for moved in moved_edges(self.estimate[0], renderer.spacing):
+                layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
+                                         larger_first=self.larger_first, bins_of=main)
+                within = used & layers.differs_from(main)
+                images.append(self._in_data_units(renderer.composite(layers, within=within,
+                                                                     elsewhere=rendering)).image)
+            return images
+
+        try:
+            return self._kept(slope, "edge renderings", make)
+        finally:  # the shifted views and the bins, the largest arrays, are not needed any more
+            for name in ("renderer", "layers"):
+                self._at_slope.pop(name, None)
+
+    def _score_reach(self, slope):
+        """How far (px) around a pixel :meth:`scores` reads the renderings (the edge renderings must be
+        exact that far around every pixel it scores): the blur of :func:`predicted_error` and the
+        widest window the renderings' local means are taken over."""
+        return _ERROR_REACH + self._consistency_windows(slope).widest // 2
+
+    def _raw_rendering(self, slope):
+        return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))
+
+    def _layers(self, slope):
+        """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
+        return self._kept(slope, "layers", lambda: self._renderer(slope).layers(
+            self._in_focus_at(slope, self.estimate[0]), self._confidence_at(slope), larger_first=self.larger_first))
+
+    def _renderer(self, slope):
+        """The unit-scaled light field's :class:`~napari_lfalias.render.SlopeRenderer` at ``slope``."""
         from ._kernels import MAX_SHIFT
-        from .render import render_dense_aperture
+        from .render import SlopeRenderer
 
-        # the surfaces the views show in focus are in focus, whatever the estimate says
-        in_focus = self._kept(slope, "in focus", lambda: self.focus_test(slope))
         # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
         rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
-        disparity = np.where(in_focus, np.float32(rendered_slope), disparity)
-        confidence = np.where(in_focus, np.float32(1), self.estimate[1])
-        rendering = render_dense_aperture(self.lf, rendered_slope, disparity, confidence,
-                                          larger_first=self.larger_first)
-        if self._unit != 1.0:
-            rendering = replace(rendering, image=rendering.image / np.float32(self._unit))
-        return rendering
+        return self._kept(slope, "renderer", lambda: SlopeRenderer(self.lf, rendered_slope))
+
+    def _in_focus(self, slope):
+        """The surfaces the views show in focus at ``slope``: in focus, whatever the estimate says."""
+        return self._kept(slope, "in focus", lambda: self.focus_test(slope))
+
+    def _in_focus_at(self, slope, disparity):
+        return np.where(self._in_focus(slope), np.float32(self._renderer(slope).slope), disparity)
+
+    def _confidence_at(self, slope):
+        return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])
+
+    def _in_data_units(self, rendering):
+        if self._unit == 1.0:
+            return rendering
+        return replace(rendering, image=rendering.image / np.float32(self._unit))
 
     @property
     def focus_test(self):
@@ -217,28 +302,41 @@ class DepthGuide:
 
         return self._kept(slope, "angular cv", make)
 
+    def _agree(self, slope):
+        """Where the views agree at ``slope`` (their score is 0 whatever the renderings say)."""
+        return self._kept(slope, "agree", lambda: self.angular_cv(slope) <= MIN_ANGULAR_CV)
+
+    def _scored_zero(self, slope):
+        """Where :meth:`scores` is 0 whatever the renderings say: the views agree, or the rendering is
+        not trusted."""
+        return self._agree(slope) | (self.rendering(slope).trust < MIN_TRUST)
+
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its
         :meth:`edge_renderings`), set to 0 where the views agree or the rendering is not trusted;
-        ``(Y, X)`` float32."""
-        rendering = self.rendering(slope)
-        windows = self._kept(slope, "consistency windows", lambda: _Windows(self._consistency_windows(slope)))
+        ``(Y, X)`` float32. Where the views agree everywhere, nothing is rendered."""
+        slope = _validate.finite_float("slope", slope)
+        if self._agree(slope).all():
+            return np.zeros(self.lf.image_shape, np.float32)
+        windows = self._consistency_windows(slope)
         naive_means = windows.means(naive)
-        score = predicted_error(naive, windows.with_mean_of(naive_means, rendering.image))
+        score = predicted_error(naive, windows.with_mean_of(naive_means, self.rendering(slope).image))
         for image in self.edge_renderings(slope):
             np.minimum(score, predicted_error(naive, windows.with_mean_of(naive_means, image)), out=score)
-        untrusted = rendering.trust < MIN_TRUST
-        agree = self.angular_cv(slope) <= MIN_ANGULAR_CV
-        score[untrusted | agree] = 0.0
+        score[self._scored_zero(slope)] = 0.0
         return score
 
     def _consistency_windows(self, slope):
-        """Side (px, odd) of each pixel's window of :data:`CONSISTENCY_PERIODS` ghost spacings at ``slope``."""
+        """The :class:`_Windows` of :data:`CONSISTENCY_PERIODS` ghost spacings around each pixel at ``slope``
+        (kept per slope)."""
         from .baselines import view_spacing
 
-        ghost = np.abs(self.estimate[0].astype(np.float64) - slope) * view_spacing(self.lf.positions)
-        half = np.minimum(np.rint(0.5 * CONSISTENCY_PERIODS * ghost), max(self.lf.image_shape))
-        return (2 * half + 1).astype(np.int64)
+        def make():
+            ghost = np.abs(self.estimate[0].astype(np.float64) - slope) * view_spacing(self.lf.positions)
+            half = np.minimum(np.rint(0.5 * CONSISTENCY_PERIODS * ghost), max(self.lf.image_shape))
+            return _Windows((2 * half + 1).astype(np.int64))
+
+        return self._kept(slope, "consistency windows", make)
 
     @staticmethod
     def blend_weight(mask):
@@ -295,6 +393,7 @@ class _Windows:
         self.x0, self.x1 = np.maximum(x - half, 0), np.minimum(x + half + 1, cols)
         self.area = ((self.y1 - self.y0) * (self.x1 - self.x0))[..., None].astype(np.float64)
         self.single = sides <= 1
+        self.widest = int(sides.max(initial=1))
 
     def means(self, values):
         """The mean of ``values (Y, X, C)`` over each pixel's window (a summed-area table: any side costs

@@ -730,8 +730,6 @@ class AliasingDetector:
 
     def _depth_detection(self, slope, threshold, level, region):
         """``method="depth"``: the predicted error against a dense aperture (:mod:`.depth_guided`)."""
-        from .refocus import refocus
-
         if _validate.integer_at_least("level", level, 0) != 0:
             raise ParameterError("method='depth' detects on the full-resolution refocus only (level=0); "
                                  "pyramid levels belong to the Cv methods")
@@ -741,7 +739,7 @@ class AliasingDetector:
             if region.dtype != np.bool_ or region.shape != shape:
                 raise ParameterError(f"region must be a boolean array of shape {shape}, got {region.dtype} "
                                      f"{region.shape}")
-        score = self.guide.scores(slope, refocus(self.lf, slope))
+        score = self.guide.scores(slope, self.guide.naive(slope))
         evaluated = np.ones(shape, bool) if region is None else region
         score = np.where(evaluated, score, np.float32(0)).astype(np.float32)
         ones = np.ones(shape, np.float32)

@@ -343,31 +343,33 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
 def _reduce_depth_guided(detector, slope, threshold):
     """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`).
 
-    Yields ``(done, 4)`` after the disparity, the rendering, the detection
-    and the blend; returns the :class:`Reduction` (``level`` holds the
-    pyramid level equivalent to the blur of each pixel the rendering
-    changed, the soft edge around the flagged pixels included; 0: the
-    naive refocus exactly).
+    Yields ``(done, 4)`` after the disparity, the naive refocus, the
+    detection (which renders, unless the views agree everywhere) and the
+    blend; returns the :class:`Reduction` (``level`` holds the pyramid
+    level equivalent to the blur of each pixel the rendering changed, the
+    soft edge around the flagged pixels included; 0: the naive refocus
+    exactly).
     """
     from .baselines import view_spacing
-    from .refocus import refocus
 
     slope = _validate.finite_float("slope", slope)
     guide = detector.guide
     disparity, _ = guide.estimate
     yield (1, 4)
-    rendering = guide.rendering(slope)
-    refocused = refocus(detector.lf, slope)
+    refocused = guide.naive(slope)
     yield (2, 4)
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
-    image = guide.blend(refocused, rendering.image, detection.mask)
-    changed = guide.blend_weight(detection.mask) > 0 if detection.mask.any() else detection.mask
+    if detection.mask.any():
+        image = guide.blend(refocused, guide.rendering(slope).image, detection.mask)
+        changed = guide.blend_weight(detection.mask) > 0
+    else:
+        image, changed = refocused.copy(), detection.mask
     level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
                                                     MAX_LEVEL), 0).astype(np.uint8)
     level[changed & (level == 0)] = 1
     yield (4, 4)
-    return Reduction(image, level, detection.cv, refocused, [detection])
+    return Reduction(image, level, detection.cv, refocused.copy(), [detection])
 
 
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,

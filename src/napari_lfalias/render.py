@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -57,7 +57,7 @@ from .errors import ParameterError
 from .lightfield import LightField
 from .refocus import _KERNEL_LOCK, refocus, shift_views
 
-__all__ = ["antialiased_refocus", "Rendering", "render_dense_aperture", "BIN_PX"]
+__all__ = ["antialiased_refocus", "Rendering", "render_dense_aperture", "SlopeRenderer", "Layers", "BIN_PX"]
 
 #: Largest spread (px) of blur widths within one disparity bin.
 BIN_PX = 1.0
@@ -141,13 +141,11 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     sharp = ~np.any(taps != 0, axis=1)
     behind = np.zeros(len(taps), bool)
     behind[order] = occluders >= 0
-    shows = np.append(sharp & behind, False)[bins] & (stack.weights > 0)  # bin -1 (no surface): False
-    weight = np.where(shows, stack.weights, 0).astype(np.float32)
-    total = weight.sum(axis=0)
-    colour = np.einsum("nyx,nyxc->yxc", weight, stack.values)
-    has_fill = total >= FILL_SHARE * np.maximum(stack.weights.sum(axis=0), 1e-6)
-    np.divide(colour, total[..., None], out=colour, where=has_fill[..., None])
-    return np.ascontiguousarray(colour, np.float32), has_fill
+    shape = bins.shape[1:]
+    fill = np.empty(shape + (stack.values.shape[-1],), np.float32)
+    has_fill = np.empty(shape, bool)
+    _run("in_focus_colour", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, fill, has_fill)
+    return fill, has_fill
 
 
 def _with_mixed_edges(disparity, slope, gap):
@@ -197,42 +195,231 @@ def render_dense_aperture(lf, slope, disparity, confidence=None, *, larger_first
     Returns
     -------
     Rendering
-    """
-    from .baselines import view_spacing
 
-    positions = np.ascontiguousarray(lf.flat_positions(), np.float64)
-    spacing = view_spacing(lf.positions)
-    disparity = np.ascontiguousarray(disparity, np.float64)
-    confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
-    confidence = np.ascontiguousarray(confidence, np.float32)
-    disparity = _with_mixed_edges(disparity, float(slope), OCCLUSION_GAP_PX / spacing)
-    n = lf.n_views
-    shape = lf.image_shape
-    warped = np.empty((n,) + shape, np.float64)
-    warped_conf = np.empty((n,) + shape, np.float32)
-    _run("warp_disparity", disparity, confidence, positions, bool(larger_first), warped, warped_conf)
-    edges, centres, taps = _bins(disparity, slope, spacing, max_bins)
-    bins = np.empty((n,) + shape, np.int16)
-    sample_conf = np.empty((n,) + shape, np.float32)
-    _run("shifted_bins", warped, warped_conf, positions, float(slope), edges, bins, sample_conf)
-    stack = shift_views(lf, slope)
-    order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
-    occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-    fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders)
-    chunks = 4
-    num = np.zeros((chunks,) + shape + (lf.n_channels,), np.float32)
-    den, blurred, trust = (np.zeros((chunks,) + shape, np.float32) for _ in range(3))
-    _run("composite_views", np.ascontiguousarray(stack.values), np.ascontiguousarray(stack.weights), bins,
-         sample_conf, order, occluders, taps, fill, has_fill, chunks, num, den, blurred, trust)
-    num, den, blurred, trust = num.sum(0), den.sum(0), blurred.sum(0), trust.sum(0)
-    seen = den > 1e-6
-    image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
-    share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
-    trust = np.divide(trust, den, out=np.zeros_like(den), where=seen)
-    naive = refocus(lf, slope)
-    in_focus = (np.abs(disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
-    image = np.where((in_focus | ~seen)[..., None], naive, image).astype(np.float32)
-    return Rendering(image, share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
+    See Also
+    --------
+    SlopeRenderer : several renderings at one slope (the shifted views made once), or a part of one.
+    """
+    return SlopeRenderer(lf, slope).render(disparity, confidence, larger_first=larger_first, max_bins=max_bins)
+
+
+class SlopeRenderer:
+    """Dense-aperture renderings of one light field at one slope, for any disparity.
+
+    What does not depend on the disparity (the shifted views and the
+    naive refocus) is made once, so that renderings of several disparity
+    maps at one slope share it; :meth:`render` can also render only the
+    pixels a caller needs.
+
+    Parameters
+    ----------
+    lf, slope
+        The light field and the disparity every rendering brings into
+        focus (as in :func:`render_dense_aperture`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias.synthetic import brick_room
+    >>> scene = brick_room(n_views=4, size=48, seed=0)
+    >>> renderer = SlopeRenderer(scene.lightfield, 4.0)
+    >>> whole = renderer.render(scene.disparity)
+    >>> corner = np.zeros((48, 48), bool)
+    >>> corner[:8, :8] = True
+    >>> part = renderer.render(scene.disparity, within=corner, elsewhere=whole)
+    >>> bool(np.allclose(part.image, whole.image, atol=1e-6))
+    True
+    """
+
+    #: Side (px) of the tiles :meth:`render` renders ``within`` by.
+    TILE = 32
+    #: Render the whole image where the tiles with their margins would cover more than this share of it.
+    MOST_PARTIAL = 0.7
+
+    def __init__(self, lf, slope):
+        from .baselines import view_spacing
+
+        self.lf = lf
+        self.slope = float(slope)
+        self.positions = np.ascontiguousarray(lf.flat_positions(), np.float64)
+        self.spacing = view_spacing(lf.positions)
+        stack = shift_views(lf, slope)
+        self.stack = replace(stack, values=np.ascontiguousarray(stack.values),
+                             weights=np.ascontiguousarray(stack.weights))
+        self.naive = refocus(lf, slope)
+
+    def render(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, within=None,
+               elsewhere=None):
+        """The :class:`Rendering` for ``disparity`` (see :func:`render_dense_aperture`).
+
+        ``within`` (Y, X) bool: render only these pixels (and the tiles
+        around them); the others are taken from ``elsewhere``, a
+        :class:`Rendering` at the same slope. Where rendered, the result
+        equals the whole rendering to float rounding.
+        """
+        layers = self.layers(disparity, confidence, larger_first=larger_first, max_bins=max_bins)
+        return self.composite(layers, within=within, elsewhere=elsewhere)
+
+    def layers(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, bins_of=None):
+        """The :class:`Layers` of ``disparity``: what :meth:`composite` renders.
+
+        ``bins_of``: other :class:`Layers` at this slope whose disparity
+        bins (their edges and blur widths) to use; by default the bins are
+        made for ``disparity`` (at most ``max_bins``).
+        """
+        slope, spacing = self.slope, self.spacing
+        disparity = np.ascontiguousarray(disparity, np.float64)
+        confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
+        confidence = np.ascontiguousarray(confidence, np.float32)
+        disparity = _with_mixed_edges(disparity, slope, OCCLUSION_GAP_PX / spacing)
+        n = self.positions.shape[0]
+        shape = disparity.shape
+        # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
+        narrow = disparity.astype(np.float32)
+        exact = np.array_equal(narrow, disparity)
+        warped = np.empty((n,) + shape, np.float32 if exact else np.float64)
+        warped_conf = np.empty((n,) + shape, np.float32)
+        _run("warp_disparity", narrow if exact else disparity, confidence, self.positions, bool(larger_first),
+             warped, warped_conf)
+        plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
+        edges, centres, taps = plan
+        bins = np.empty((n,) + shape, np.int16)
+        sample_conf = np.empty((n,) + shape, np.float32)
+        _run("shifted_bins", warped, warped_conf, self.positions, slope, edges, bins, sample_conf)
+        del warped, warped_conf
+        order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
+        occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
+        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill)
+
+    def composite(self, layers, *, within=None, elsewhere=None):
+        """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
+        :meth:`render`."""
+        if within is not None and elsewhere is None:
+            raise ParameterError("render(within=...) needs elsewhere=, the Rendering its other pixels come from")
+        if within is not None and not within.any():
+            return elsewhere
+        slope, spacing = self.slope, self.spacing
+        windows = None if within is None else _windows(within, layers.reach, self.TILE, self.MOST_PARTIAL)
+        num, den, blurred, trust = _composite(self.stack, layers, windows)
+        seen = den > 1e-6
+        image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
+        share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
+        trust = np.divide(trust, den, out=np.zeros_like(den), where=seen)
+        in_focus = (np.abs(layers.disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
+        rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
+                              share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
+        if windows is None:
+            return rendering
+        done = np.zeros(den.shape, bool)
+        for _, (y0, y1, x0, x1) in windows:
+            done[y0:y1, x0:x1] = True
+        return Rendering(*(np.where(done[..., None] if part.ndim == 3 else done, part, other)
+                           for part, other in zip((rendering.image, rendering.blurred_share, rendering.trust),
+                                                  (elsewhere.image, elsewhere.blurred_share, elsewhere.trust))))
+
+
+@dataclass(frozen=True)
+class Layers:
+    """A disparity map made ready to composite at one slope (:meth:`SlopeRenderer.layers`).
+
+    Attributes
+    ----------
+    disparity : ndarray (Y, X) float64
+        The disparity, occluding edges given to the side sharper at the slope.
+    bins : tuple
+        The disparity bins: edges ``(K + 1,)``, centres ``(K,)``, box taps ``(K, 4)``.
+    view_bins, view_confidence : ndarray (n, Y, X)
+        The bin (int16, -1: none) and confidence of the surface each view's shifted sample shows.
+    order, occluders : ndarray (K,) int64
+        The bins front to back; for each, the last position in ``order`` of a bin that hides it.
+    fill, has_fill : ndarray (Y, X, C) float32, (Y, X) bool
+        The in-focus background behind occluders' edges.
+    """
+
+    disparity: np.ndarray
+    bins: tuple
+    view_bins: np.ndarray
+    view_confidence: np.ndarray
+    order: np.ndarray
+    occluders: np.ndarray
+    fill: np.ndarray
+    has_fill: np.ndarray
+
+    @property
+    def reach(self):
+        """How far (px) the blur of any bin reaches: a composited pixel depends on the samples this close."""
+        taps = self.bins[2]
+        blurred = np.any(taps != 0, axis=1)
+        if not blurred.any():
+            return 0
+        return int(max(taps[blurred, 0].max(), taps[blurred, 2].max())) + 1
+
+    def differs_from(self, other):
+        """``(Y, X)`` bool: the pixels whose rendering may differ from that of ``other`` (layers with the
+        same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
+        if self.bins is not other.bins:
+            raise ParameterError("Layers.differs_from compares layers with the same bins (layers(bins_of=...))")
+        inputs = np.any(self.view_bins != other.view_bins, axis=0)
+        inputs |= np.any(self.view_confidence != other.view_confidence, axis=0)
+        inputs |= self.has_fill != other.has_fill
+        inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
+        reach = self.reach
+        grown = ndimage.maximum_filter(inputs, size=2 * reach + 1) if reach else inputs
+        return grown | (self.disparity != other.disparity)
+
+
+def _windows(within, margin, tile, most):
+    """Windows ``[((y0, y1, x0, x1) to composite, (y0, y1, x0, x1) rendered exactly), ...]`` that render
+    every pixel of ``within``: runs of tiles along each row of tiles that hold one, grown by ``margin``;
+    ``None`` (render the whole image) where they would cover more than ``most`` of it."""
+    n_rows, n_cols = within.shape
+    rows, cols = -(-n_rows // tile), -(-n_cols // tile)
+    padded = np.zeros((rows * tile, cols * tile), bool)
+    padded[:n_rows, :n_cols] = within
+    wanted = padded.reshape(rows, tile, cols, tile).any(axis=(1, 3))
+    windows, area = [], 0
+    for r in range(rows):
+        c = 0
+        while c < cols:
+            if not wanted[r, c]:
+                c += 1
+                continue
+            end = c
+            while end < cols and wanted[r, end]:
+                end += 1
+            inner = (r * tile, min((r + 1) * tile, n_rows), c * tile, min(end * tile, n_cols))
+            outer = (max(inner[0] - margin, 0), min(inner[1] + margin, n_rows),
+                     max(inner[2] - margin, 0), min(inner[3] + margin, n_cols))
+            windows.append((outer, inner))
+            area += (outer[1] - outer[0]) * (outer[3] - outer[2])
+            c = end
+    return None if area > most * n_rows * n_cols else windows
+
+
+def _composite(stack, layers, windows=None):
+    """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X) of :class:`Layers`
+    (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with ``windows``
+    (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
+    bins, sample_conf, fill, has_fill = layers.view_bins, layers.view_confidence, layers.fill, layers.has_fill
+    order, occluders, taps = layers.order, layers.occluders, layers.bins[2]
+    shape, n_ch = bins.shape[1:], stack.values.shape[-1]
+    whole = ((0, shape[0], 0, shape[1]),) * 2
+    sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
+    for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
+        part = (slice(y0, y1), slice(x0, x1))
+        every = (slice(None),) + part
+        chunks = 4
+        num = np.zeros((chunks, y1 - y0, x1 - x0, n_ch), np.float32)
+        den, blurred, trust = (np.zeros((chunks, y1 - y0, x1 - x0), np.float32) for _ in range(3))
+        _run("composite_views", *(np.ascontiguousarray(a[every]) for a in (stack.values, stack.weights, bins,
+                                                                             sample_conf)),
+             order, occluders, taps, np.ascontiguousarray(fill[part]), np.ascontiguousarray(has_fill[part]),
+             chunks, num, den, blurred, trust)
+        inner = (slice(i0 - y0, i1 - y0), slice(j0 - x0, j1 - x0))
+        for total, chunked in zip(sums, (num, den, blurred, trust)):
+            total[i0:i1, j0:j1] = chunked.sum(0)[inner]
+    return sums
 
 
 def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):

@@ -7,7 +7,7 @@ import pytest
 from scipy import ndimage
 
 import napari_lfalias as lfa
-from napari_lfalias import _inputs, metrics, presets
+from napari_lfalias import _inputs, depth_guided, metrics, presets
 from napari_lfalias.depth_guided import (EDGE_TOLERANCE_PX, THRESHOLD, DepthGuide, moved_edges, predicted_error,
                                          with_local_mean_of)
 from napari_lfalias.errors import ParameterError
@@ -333,3 +333,27 @@ def test_moved_edges_move_the_depth_edges_only():
     np.testing.assert_array_equal(grown[far], slant[far])  # the slanted surface left as it is
     np.testing.assert_array_equal(shrunk == 3.0, ndimage.binary_erosion(cube_mask, iterations=EDGE_TOLERANCE_PX,
                                                                         structure=np.ones((3, 3))))
+
+
+def test_the_fringe_of_an_aliased_region_below_t_takes_the_rendering_too(monkeypatch):
+    # Hysteresis: from the flagged pixels (predicted error > T) on, through those above REPLACE_FRACTION of T.
+    # Measured with the true disparity: +7.4 dB where aliased with the flagged pixels only, +11.0 with them.
+    scene = brick_room(n_views=5, size=96, seed=0)
+    lf = as_user_has_it(scene.lightfield)
+    slope = 2.0
+    naive, reference = lfa.refocus(lf, slope), scene.reference(slope)
+    aliased = metrics.aliased_pixels(naive, reference)
+    detector = lfa.AliasingDetector(lf, disparity=scene.disparity)
+    gains = {}
+    for fraction in (1.0, depth_guided.REPLACE_FRACTION):
+        monkeypatch.setattr(depth_guided, "REPLACE_FRACTION", fraction)
+        result = lfa.reduce_aliasing(lf, slope, detector=detector)
+        flagged, replaced = result.detections[0].mask, result.level > 0
+        assert flagged.any() and not (flagged & ~replaced).any()
+        # every replaced region holds a flagged pixel: nothing below T is replaced on its own
+        labels, count = ndimage.label(replaced, structure=np.ones((3, 3)))
+        assert set(np.unique(labels[flagged])) == set(range(1, count + 1))
+        gains[fraction] = (metrics.psnr(result.image, reference, mask=aliased)
+                           - metrics.psnr(naive, reference, mask=aliased), int(replaced.sum()))
+    assert gains[depth_guided.REPLACE_FRACTION][1] > gains[1.0][1]
+    assert gains[depth_guided.REPLACE_FRACTION][0] >= gains[1.0][0] + 2.0

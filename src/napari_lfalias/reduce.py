@@ -54,6 +54,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from . import _validate
 from .baselines import _disparity_map
@@ -341,7 +342,9 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
 
 
 def _reduce_depth_guided(detector, slope, threshold):
-    """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`).
+    """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`),
+    and so do those whose predicted error exceeds :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION`
+    of the threshold.
 
     Yields ``(done, 4)`` after the disparity, the naive refocus, the
     detection (which renders, unless the views agree everywhere) and the
@@ -351,6 +354,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     exactly).
     """
     from .baselines import view_spacing
+    from .depth_guided import REPLACE_FRACTION
 
     slope = _validate.finite_float("slope", slope)
     guide = detector.guide
@@ -360,11 +364,14 @@ def _reduce_depth_guided(detector, slope, threshold):
     yield (2, 4)
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
-    if detection.mask.any():
-        image = guide.blend(refocused, guide.rendering(slope).image, detection.mask)
-        changed = guide.blend_weight(detection.mask) > 0
+    # hysteresis: from the flagged pixels on, through the pixels above REPLACE_FRACTION of the threshold
+    replaced = ndimage.binary_propagation(detection.mask, structure=np.ones((3, 3), bool),
+                                          mask=detection.cv > REPLACE_FRACTION * detection.threshold)
+    if replaced.any():
+        image = guide.blend(refocused, guide.rendering(slope).image, replaced)
+        changed = guide.blend_weight(replaced) > 0
     else:
-        image, changed = refocused.copy(), detection.mask
+        image, changed = refocused.copy(), replaced
     level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
                                                     MAX_LEVEL), 0).astype(np.uint8)
     level[changed & (level == 0)] = 1

@@ -228,7 +228,7 @@ def test_reduce_with_the_depth_method_is_the_apis_reduction_and_follows_the_focu
     mask = find_output_layer(viewer, "mask")
     np.testing.assert_array_equal(mask.data.astype(bool), expected.detections[0].mask)
     assert mask.metadata["lfalias_params"]["method"] == "depth"
-    assert widget.mask_source.text() == "pixels Reduce aliasing replaced at focus 4.00 (predicted error > T)"
+    assert widget.mask_source.text() == "pixels Reduce aliasing flagged at focus 4.00 (predicted error > T)"
     # the Cv layer is still the live exact Cv
     cv = find_output_layer(viewer, "cv")
     np.testing.assert_array_equal(cv.data, lfa.detect_aliasing(lf, 4.0, skip_flat=False, method="analytic").cv)

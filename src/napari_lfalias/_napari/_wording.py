@@ -120,13 +120,13 @@ def mask_description(method, slope=None, n_patterns=None):
     >>> mask_description("analytic")
     'exact Cv > T (live)'
     >>> mask_description("depth", 4.0)
-    'pixels Reduce aliasing replaced at focus 4.00 (predicted error > T)'
+    'pixels Reduce aliasing flagged at focus 4.00 (predicted error > T)'
     """
     if method == "analytic":
         return "exact Cv > T (live)"
     if method == "monte_carlo":
         return f"Monte-Carlo Cv > T ({n_patterns} patterns)"
-    return f"pixels Reduce aliasing replaced at focus {slope:.2f} (predicted error > T)"
+    return f"pixels Reduce aliasing flagged at focus {slope:.2f} (predicted error > T)"
 
 
 def disparity_summary(estimate):

@@ -91,6 +91,8 @@ EDGE_TOLERANCE_PX = 2
 #: detection compares the naive refocus with the rendering after making it so (module notes). One
 #: spacing is a whole period of the ghosts; two keep the mean clear of the rounding of the window.
 CONSISTENCY_PERIODS = 2
+
+
 def moved_edges(disparity, spacing):
     """``disparity`` with its depth edges moved :data:`EDGE_TOLERANCE_PX` px outwards and inwards: the
     larger disparities grown, then shrunk (grey dilation, erosion), where they meet disparities at

@@ -343,8 +343,8 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
 
 def _reduce_depth_guided(detector, slope, threshold):
     """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`),
-    and so do those whose predicted error exceeds :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION`
-    of the threshold.
+    and so do the pixels connected to them whose predicted error exceeds
+    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold.
 
     Yields ``(done, 4)`` after the disparity, the naive refocus, the
     detection (which renders, unless the views agree everywhere) and the

@@ -259,6 +259,28 @@ def test_a_rendering_wrong_along_an_outline_does_not_flag_clean_pixels():
     assert not (guide.scores(slope, naive) > THRESHOLD).any()
 
 
+def test_the_occlusion_order_is_judged_with_the_surfaces_in_focus_where_the_views_show_them():
+    """A checkerboard wall's disparity is ambiguous to within a period; an estimate a period off can put it
+    in front of the noise patch that hides it (holdout "noise over a checkerboard, 3x3" at slope -3: the
+    estimate put the wall at +5, the order came out backwards and the clean pixels lost 6.7 dB). In focus,
+    the views say where the wall is. Measured here: -3.2 dB overall and -9.1 on the clean pixels when the
+    order was judged from the estimate; +1.5 / -3.5 judged with the wall in focus; +2.6 / -1.7 with the
+    edge tolerance also moving the in-focus wall's edge (the band along the patch's outline, where the
+    focus test cannot tell, keeps the estimate)."""
+    scene = layered_scene([(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3, size=96,
+                          seed=15)
+    slope = -3.0
+    a_period_off = np.where(scene.disparity == -3.0, 5.0, scene.disparity).astype(np.float32)
+    guide = DepthGuide(scene.lightfield, a_period_off)
+    assert guide.larger_first(slope)
+    naive = lfa.refocus(scene.lightfield, slope)
+    reference = scene.reference(slope)
+    image = lfa.reduce_aliasing(scene.lightfield, slope, disparity=a_period_off).image
+    clean = ~metrics.aliased_pixels(naive, reference)
+    gains = [metrics.psnr(image, reference, mask=m) - metrics.psnr(naive, reference, mask=m) for m in (None, clean)]
+    assert gains[0] >= 2.0 and gains[1] >= -2.5, gains
+
+
 def test_with_local_mean_of_keeps_what_differs_within_the_window():
     rng = np.random.default_rng(0)
     naive = rng.random((40, 50, 3), np.float32)

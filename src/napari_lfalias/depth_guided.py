@@ -29,7 +29,10 @@ sparse refocus and what a dense aperture would record.
   :data:`EDGE_TOLERANCE_PX` either way (chosen on the benchmark's tuning
   cases as the least that left none of them below the naive refocus).
   Only depth edges move (:func:`moved_edges`: where the disparity meets
-  one at least a disparity bin away; a surface's own noise stays), and
+  one at least a disparity bin away; a surface's own noise stays), those
+  of the disparity the rendering uses (a surface the views show in focus
+  at the slope, whatever the estimate says, so that the edge of an
+  in-focus surface the estimate fattened an occluder over moves too), and
   the moved renderings share the rendering's bins, so they differ from it
   only around those edges, and are rendered there only.
   The naive refocus and a dense aperture record the same light through
@@ -169,7 +172,6 @@ class DepthGuide:
         self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
         self._given = disparity
         self._estimate = None
-        self._larger_first = None
         self._slope = None
         self._at_slope = {}  # what was made for self._slope, by name
         self._focus_test = None
@@ -187,19 +189,27 @@ class DepthGuide:
             self._estimate = (disparity.astype(np.float32), confidence)
         return self._estimate
 
-    @property
-    def larger_first(self):
-        """Whether larger disparities are in front."""
-        if self._larger_first is None:
-            if self.nearer == "auto":
-                from .baselines import _larger_is_nearer
+    def larger_first(self, slope):
+        """Whether larger disparities are in front, judged at ``slope`` (kept per slope).
 
-                self._larger_first = _larger_is_nearer(np.ascontiguousarray(self.lf.views()),
-                                                       np.ascontiguousarray(self.lf.flat_positions()),
-                                                       self.estimate[0].astype(np.float64))
-            else:
-                self._larger_first = self.nearer == "larger"
-        return self._larger_first
+        With ``nearer="auto"`` it is judged from the views at the depth edges
+        of the disparity the rendering at ``slope`` uses: the estimate, with
+        the surfaces the views show in focus at their true disparity, the
+        slope. An estimate a period off on a periodic texture (whose
+        confidence is low) can put a surface on the wrong side of another;
+        where the views say it is in focus, it is not.
+        """
+        if self.nearer != "auto":
+            return self.nearer == "larger"
+
+        def make():
+            from .baselines import _larger_is_nearer
+
+            return _larger_is_nearer(np.ascontiguousarray(self.lf.views()),
+                                     np.ascontiguousarray(self.lf.flat_positions()),
+                                     self._in_focus_at(slope, self.estimate[0]).astype(np.float64))
+
+        return self._kept(slope, "larger first", make)
 
     def _keep(self, slope):
         if self._slope != slope:
@@ -226,7 +236,8 @@ class DepthGuide:
         return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
     def edge_renderings(self, slope):
-        """The rendered images at ``slope`` with the disparity's depth edges moved :data:`EDGE_TOLERANCE_PX`
+        """The rendered images at ``slope`` with the depth edges of the disparity the :meth:`rendering` uses
+        (the estimate, with what the views show in focus at ``slope``) moved :data:`EDGE_TOLERANCE_PX`
         outwards and inwards (:func:`moved_edges`), in the bins of the :meth:`rendering`; kept per slope.
 
         They are rendered only where they differ from the :meth:`rendering`
@@ -243,9 +254,9 @@ class DepthGuide:
                 return [self.rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
             images = []
-            for moved in moved_edges(self.estimate[0], renderer.spacing):
+            for moved in moved_edges(self._in_focus_at(slope, self.estimate[0]), renderer.spacing):
                 layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
-                                         larger_first=self.larger_first, bins_of=main)
+                                         larger_first=self.larger_first(slope), bins_of=main)
                 within = used & layers.differs_from(main)
                 images.append(self._in_data_units(renderer.composite(layers, within=within,
                                                                      elsewhere=rendering)).image)
@@ -269,7 +280,7 @@ class DepthGuide:
     def _layers(self, slope):
         """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
         return self._kept(slope, "layers", lambda: self._renderer(slope).layers(
-            self._in_focus_at(slope, self.estimate[0]), self._confidence_at(slope), larger_first=self.larger_first))
+            self._in_focus_at(slope, self.estimate[0]), self._confidence_at(slope), larger_first=self.larger_first(slope)))
 
     def _renderer(self, slope):
         """The unit-scaled light field's :class:`~napari_lfalias.render.SlopeRenderer` at ``slope``."""

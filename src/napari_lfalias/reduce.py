@@ -344,7 +344,8 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
 def _reduce_depth_guided(detector, slope, threshold):
     """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`),
     and so do the pixels connected to them whose predicted error exceeds
-    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold.
+    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold
+    and does not depend on where the depth edges are (:func:`_with_fringe`).
 
     Yields ``(done, 4)`` after the disparity, the naive refocus, the
     detection (which renders, unless the views agree everywhere) and the
@@ -354,7 +355,6 @@ def _reduce_depth_guided(detector, slope, threshold):
     exactly).
     """
     from .baselines import view_spacing
-    from .depth_guided import REPLACE_FRACTION
 
     slope = _validate.finite_float("slope", slope)
     guide = detector.guide
@@ -364,9 +364,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     yield (2, 4)
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
-    # hysteresis: from the flagged pixels on, through the pixels above REPLACE_FRACTION of the threshold
-    replaced = ndimage.binary_propagation(detection.mask, structure=np.ones((3, 3), bool),
-                                          mask=detection.cv > REPLACE_FRACTION * detection.threshold)
+    replaced = _with_fringe(detection, guide, slope)
     if replaced.any():
         image = guide.blend(refocused, guide.rendering(slope).image, replaced)
         changed = guide.blend_weight(replaced) > 0
@@ -377,6 +375,20 @@ def _reduce_depth_guided(detector, slope, threshold):
     level[changed & (level == 0)] = 1
     yield (4, 4)
     return Reduction(image, level, detection.cv, refocused.copy(), [detection])
+
+
+def _with_fringe(detection, guide, slope):
+    """The flagged pixels and their fringe (hysteresis): the pixels connected to them whose predicted error
+    exceeds :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and the rendering's
+    dependence on where the depth edges are (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`).
+    Below the threshold the rendering is trusted only where the naive refocus is farther from it than the
+    rendering is from itself with the edges moved."""
+    from .depth_guided import REPLACE_FRACTION
+
+    if not detection.mask.any():
+        return detection.mask.copy()
+    fringe = (detection.cv > REPLACE_FRACTION * detection.threshold) & (guide.edge_spread(slope) < detection.cv)
+    return ndimage.binary_propagation(detection.mask, structure=np.ones((3, 3), bool), mask=fringe)
 
 
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,

@@ -155,3 +155,12 @@ def test_lazy_data_stay_lazy_until_computed():
     computed = lf.compute()
     assert not computed.is_lazy
     np.testing.assert_allclose(computed.data, (data * 255).astype(np.uint8) / np.float32(255))
+
+
+def test_float64_values_beyond_float32_are_named_not_called_nan():
+    data = np.full((2, 2, 4, 4, 1), 0.5)
+    data[1, 0, 2, 3, 0] = -1e300
+    with pytest.raises(ParameterError, match=r"1 finite float64 values beyond float32's range.*1e\+300"):
+        LightField(data)
+    data[1, 0, 2, 3, 0] = 1e30  # within float32: kept
+    assert LightField(data).data[1, 0, 2, 3, 0] == np.float32(1e30)

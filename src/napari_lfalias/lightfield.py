@@ -68,7 +68,19 @@ def _as_float32_views(data):
     if np.issubdtype(dtype, np.integer):
         scale = np.float32(np.iinfo(dtype).max)
         return data.astype(np.float32) / scale
-    return data.astype(np.float32, copy=False)
+    if dtype.itemsize <= 4 or _is_lazy(data):
+        return data.astype(np.float32, copy=False)
+    with np.errstate(over="ignore"):
+        out = data.astype(np.float32)
+    if not np.isfinite(out).all():
+        overflowed = np.isinf(out) & np.isfinite(data)
+        if overflowed.any():
+            largest = float(np.max(np.abs(data[overflowed])))
+            raise ParameterError(
+                f"data holds {int(overflowed.sum())} finite {dtype} values beyond float32's range "
+                f"(largest magnitude {largest:.3g} > {float(np.finfo(np.float32).max):.3g}); "
+                "scale the data into float32's range first")
+    return out
 
 
 class LightField:

@@ -463,7 +463,8 @@ def aperture_radius(lf):
 
     positions = lf.flat_positions().astype(np.float64)
     if lf.weights is not None:
-        positions = positions[lf.weights.reshape(len(positions), -1).max(axis=1) > 0]
+        seen = lf.weights.reshape(len(positions), -1).max(axis=1) > 0
+        positions = positions[seen] if seen.any() else positions
     offsets = np.abs(positions - positions.mean(axis=0))
     return float(offsets.max(initial=0.0)) + 0.5 * view_spacing(lf.positions)
 

@@ -449,3 +449,17 @@ def test_the_fringe_of_an_aliased_region_below_t_takes_the_rendering_too(monkeyp
                            - metrics.psnr(naive, reference, mask=aliased), int(replaced.sum()))
     assert gains[depth_guided.REPLACE_FRACTION][1] > gains[1.0][1]
     assert gains[depth_guided.REPLACE_FRACTION][0] >= gains[1.0][0] + 2.0
+
+
+def test_the_windows_of_nearer_ghosts_follow_the_judged_occlusion_order():
+    """With the smaller disparity in front, the order judged from the views is what the local-mean windows
+    use (not the default order): the windows of ``nearer="auto"`` are those of ``nearer="smaller"``."""
+    scene = layered_scene([(-4.0, "lines", (0.3, 0.7, 0.2, 0.6)), (3.0, "tiles", None)], n_views=4, size=96, seed=14)
+    auto, smaller = (DepthGuide(scene.lightfield, scene.disparity, nearer=n) for n in ("auto", "smaller"))
+    larger = DepthGuide(scene.lightfield, scene.disparity, nearer="larger")
+    slope = 3.0
+    assert not auto.larger_first(slope)
+    sides = [guide._consistency_windows(slope).x1 - guide._consistency_windows(slope).x0
+             for guide in (auto, smaller, larger)]
+    np.testing.assert_array_equal(sides[0], sides[1])
+    assert (sides[0] != sides[2]).any()

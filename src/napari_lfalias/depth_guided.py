@@ -401,7 +401,7 @@ class DepthGuide:
             spacing = view_spacing(self.lf.positions)
             own = np.abs(self.estimate[0].astype(np.float64) - slope) * spacing
             reaching = ghosts_reaching(self.estimate[0], slope, spacing, aperture_radius(self.lf) / spacing,
-                                       self.larger_first)
+                                       self.larger_first(slope))
             half = np.maximum(np.rint(0.5 * CONSISTENCY_PERIODS * own), np.rint(0.5 * REACHING_PERIODS * reaching))
             half = np.minimum(half, max(self.lf.image_shape))
             return _Windows((2 * half + 1).astype(np.int64))

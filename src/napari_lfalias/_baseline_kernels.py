@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from ._kernels import bilinear_point
 
-__all__ = ["box_image", "box_views", "view_spread"]
+__all__ = ["box_image", "box_image_into", "box_views", "view_spread"]
 
 
 # -- box filter -----------------------------------------------------------------------
@@ -77,7 +77,12 @@ def _box_pass_y(src, out, n, f):
 @njit(cache=True)
 def box_image(src, ny, fy, nx, fx, out):
     """Separable box sum of one image ``src (Y, X, K)`` (contiguous float32) into ``out``."""
-    tmp = np.empty(src.shape, np.float32)
+    box_image_into(src, ny, fy, nx, fx, out, np.empty(src.shape, np.float32))
+
+
+@njit(cache=True)
+def box_image_into(src, ny, fy, nx, fx, out, tmp):
+    """:func:`box_image` with the scratch ``tmp`` (contiguous, the shape of ``src``) given."""
     _box_pass_x(src, tmp, nx, fx)
     _box_pass_y(tmp.reshape(src.shape[0], src.shape[1] * src.shape[2]),
                 out.reshape(src.shape[0], src.shape[1] * src.shape[2]), ny, fy)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._baseline_kernels import box_image
+from ._baseline_kernels import box_image_into
 
 __all__ = ["warp_disparity", "shifted_bins", "in_focus_colour", "composite_views"]
 
@@ -185,9 +185,20 @@ def _bin_boxes(bins, weights, n_bins):
     return boxes
 
 
+@njit(cache=True, inline="always")
+def _accumulate(num, den, blurred, trust, y, x, t, colour, visible, confidence, blur):
+    """Add a layer's cell at ``(y, x)`` (colour ``colour``, coverage ``visible``) by the weight ``t``."""
+    for c in range(num.shape[2]):
+        num[y, x, c] += t * colour[c]
+    den[y, x] += t * visible
+    if blur:
+        blurred[y, x] += t * visible
+    trust[y, x] += t * confidence
+
+
 @njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
-                    trust, covers, seen):
+                    trust, covers, seen, scratch):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -201,20 +212,25 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     occluder, which is what the rays between the views see there (left out,
     the occluder's colour took the gap: a halo along its outline). Layers
     hold unit coverage; the view's cell at a pixel counts by the weight of
-    the view's sample there.
+    the view's sample there. A bin in focus (no blur) is its samples as
+    they are: it is added without a layer.
 
-    ``covers (K, Y, X)`` and ``seen (Y, X)`` are scratch: each bin's
-    blurred coverage (within its reach), and the share of the cell the bins
-    composited so far leave free, brought up to ``occluders[o]`` as ``o``
-    advances (``occluders`` never decreases along ``order``).
+    ``covers (K, Y, X)``, ``seen (Y, X)`` and ``scratch (3, Y * X * (C + 3))``
+    are scratch: each bin's blurred coverage (within its reach), the share
+    of the cell the bins composited so far leave free, brought up to
+    ``occluders[o]`` as ``o`` advances (``occluders`` never decreases along
+    ``order``), and a blurred bin's layer, its box sum and the box's
+    intermediate pass.
     """
     n_rows, n_cols, n_ch = values.shape
+    n_layer = n_ch + 3
     n_order = order.shape[0]
     boxes = _bin_boxes(bins, weights, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
         rank[order[o]] = o
     reach = np.full((n_order, 4), -1, np.int64)  # each bin's blurred extent y0, y1, x0, x1 (exclusive ends)
+    one = np.float32(1.0)
     seen[:] = 1.0
     lagged = -1  # seen holds the bins order[:lagged + 1]
     for o in range(n_order):
@@ -235,7 +251,21 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
         x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
         reach[o, 0], reach[o, 1], reach[o, 2], reach[o, 3] = y0, y1, x0, x1
-        layer = np.zeros((y1 - y0, x1 - x0, n_ch + 3), np.float32)
+        if not blur:  # the samples themselves, unit coverage
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if bins[y, x] != k or not weights[y, x] > 0.0:
+                        covers[o, y, x] = 0.0
+                        continue
+                    covers[o, y, x] = 1.0
+                    t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]
+                    if t > 0.0:
+                        _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False)
+            continue
+        size = (y1 - y0) * (x1 - x0) * n_layer
+        scratch[0, :size] = 0.0
+        layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        hides = occluders[o] >= 0
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
                 if bins[y, x] == k and weights[y, x] > 0.0:
@@ -243,24 +273,23 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                         layer[y - y0, x - x0, c] = values[y, x, c]
                     layer[y - y0, x - x0, n_ch] = 1.0
                     layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
-        hides = blur and occluders[o] >= 0
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     b = bins[y, x]
                     if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
                         layer[y - y0, x - x0, n_ch + 2] = 1.0
-        if blur:
-            summed = np.empty_like(layer)
-            box_image(layer, int(ny), fy, int(nx), fx, summed)
-            area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
-            layer = summed / area
+        summed = scratch[1, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        box_image_into(layer, int(ny), fy, int(nx), fx, summed, scratch[2, :size].reshape(summed.shape))
+        area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
+        means = scratch[1, :size]  # the box sums become means in place
+        for j in range(size):
+            means[j] /= area
         for y in range(y0, y1):
             for x in range(x0, x1):
-                cell = layer[y - y0, x - x0]
-                visible = cell[n_ch]
+                visible = summed[y - y0, x - x0, n_ch]
                 # what the nearer bins hide of this surface has the colour of what is seen of it nearby
-                scale = (visible + cell[n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
+                scale = (visible + summed[y - y0, x - x0, n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
                 cover = min(visible * scale, 1.0)
                 covers[o, y, x] = cover
                 if cover <= 0.0:
@@ -269,12 +298,8 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                 if t <= 0.0:
                     continue
                 t *= scale
-                for c in range(n_ch):
-                    num[y, x, c] += t * cell[c]
-                den[y, x] += t * visible
-                if blur:
-                    blurred[y, x] += t * visible
-                trust[y, x] += t * cell[n_ch + 1]
+                _accumulate(num, den, blurred, trust, y, x, t, summed[y - y0, x - x0], visible,
+                            summed[y - y0, x - x0, n_ch + 1], True)
     while lagged < n_order - 1:  # what every bin leaves free
         lagged += 1
         y0, y1, x0, x1 = reach[lagged, 0], reach[lagged, 1], reach[lagged, 2], reach[lagged, 3]
@@ -285,10 +310,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         for x in range(n_cols):
             t = seen[y, x] * weights[y, x]
             if t > 0.0 and has_fill[y, x]:
-                for c in range(n_ch):
-                    num[y, x, c] += t * fill[y, x, c]
-                den[y, x] += t
-                trust[y, x] += t
+                _accumulate(num, den, blurred, trust, y, x, t, fill[y, x], one, one, False)
 
 
 @njit(cache=True, parallel=True)
@@ -307,6 +329,7 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
     for chunk in prange(n_chunks):
         covers = np.empty((order.shape[0], n_rows, n_cols), np.float32)
         seen = np.empty((n_rows, n_cols), np.float32)
+        scratch = np.empty((3, n_rows * n_cols * (values.shape[3] + 3)), np.float32)
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
-                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen)
+                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch)

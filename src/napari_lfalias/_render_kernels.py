@@ -1,12 +1,11 @@
 """Numba kernels of the dense-aperture renderer (:mod:`napari_lfalias.render`).
 
-- ``warp_disparity``: the centre-of-aperture disparity map forward-warped
+- ``view_bins``: the centre-of-aperture disparity map forward-warped
   into every view (each centre pixel splats onto the four pixels around
   where it lands; the nearer surface wins), holes (disocclusions) filled
-  along the row from the farther side.
-- ``shifted_bins``: for every view, the disparity bin of the surface its
-  sample at ``p + slope * q_i`` shows (nearest pixel), and the confidence
-  there; -1 outside the view.
+  along the row from the farther side; then, for every view, the
+  disparity bin of the surface its sample at ``p + slope * q_i`` shows
+  (nearest pixel), and the confidence there; -1 outside the view.
 - ``in_focus_colour``: the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
@@ -23,7 +22,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["warp_disparity", "shifted_bins", "in_focus_colour", "composite_views"]
+__all__ = ["view_bins", "in_focus_colour", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -68,70 +67,101 @@ def _fill_holes(values, confidence, filled, larger_first):
     return unfilled
 
 
+@njit(cache=True)
+def _warp_view(disparity, confidence, q_y, q_x, larger_first, out_d, out_c, filled):
+    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into the view at ``(q_y, q_x)`` (``out_d``,
+    ``out_c``); holes are filled along rows, then, where a row had nothing to fill from, along columns
+    (:func:`_fill_holes`); a view nothing lands in stays NaN. ``filled (Y, X)`` is scratch."""
+    n_rows, n_cols = disparity.shape
+    out_d[:] = np.nan
+    out_c[:] = 0.0
+    filled[:] = False
+    for y in range(n_rows):
+        for x in range(n_cols):
+            d = disparity[y, x]
+            ty = y + d * q_y
+            tx = x + d * q_x
+            if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
+                continue  # lands outside the view (tested on floats: no integer overflow)
+            y0 = int(np.floor(ty))
+            x0 = int(np.floor(tx))
+            for yy in range(y0, y0 + 2):
+                if yy < 0 or yy >= n_rows:
+                    continue
+                for xx in range(x0, x0 + 2):
+                    if xx < 0 or xx >= n_cols:
+                        continue
+                    if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
+                        out_d[yy, xx] = d
+                        out_c[yy, xx] = confidence[y, x]
+                        filled[yy, xx] = True
+    if _fill_holes(out_d, out_c, filled, larger_first) > 0:
+        _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+
+
+@njit(cache=True, inline="always")
+def _bin_of(d, edges):
+    """``searchsorted(edges, d, side="right") - 1`` clipped to the bins, for ``edges`` evenly spaced but
+    for the outer two (made infinite): a guess from the spacing, corrected against the edges."""
+    n_bins = edges.shape[0] - 1
+    b = 0
+    step = edges[2] - edges[1] if n_bins > 2 else 0.0
+    if step > 0.0:
+        guess = (d - edges[1]) / step + 1.0
+        if guess >= n_bins - 1:
+            b = n_bins - 1
+        elif guess > 0.0:
+            b = int(guess)
+    while b > 0 and edges[b] > d:
+        b -= 1
+    while b < n_bins - 1 and edges[b + 1] <= d:
+        b += 1
+    return b
+
+
+@njit(cache=True)
+def _shifted_bins_view(warped, warped_confidence, dy, dx, edges, out_bins, out_confidence):
+    """The bin ``(Y, X)`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
+    warped disparity ``warped``; -1 outside the view), and its confidence."""
+    n_rows, n_cols = warped.shape
+    out_bins[:] = -1
+    out_confidence[:] = 0.0
+    if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
+        return
+    columns = np.empty(n_cols, np.int64)
+    for x in range(n_cols):
+        columns[x] = int(np.floor(x + dx + 0.5))
+    for y in range(n_rows):
+        sy = int(np.floor(y + dy + 0.5))
+        if sy < 0 or sy >= n_rows:
+            continue
+        for x in range(n_cols):
+            sx = columns[x]
+            if sx < 0 or sx >= n_cols:
+                continue
+            d = warped[sy, sx]
+            if d != d:
+                continue
+            out_bins[y, x] = _bin_of(d, edges)
+            out_confidence[y, x] = warped_confidence[sy, sx]
+
+
 @njit(cache=True, parallel=True)
-def warp_disparity(disparity, confidence, positions, larger_first, out_disparity, out_confidence):
-    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into every view ``(n, Y, X)``; holes are filled
-    along rows, then, where a row had nothing to fill from, along columns (:func:`_fill_holes`); a view
-    nothing lands in stays NaN. ``out_disparity`` may be float32 where the disparities are float32 values."""
+def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
+    """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
+    ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
+    forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
+    shift (:func:`_shifted_bins_view`); views in parallel."""
     n = positions.shape[0]
     n_rows, n_cols = disparity.shape
     for i in prange(n):
-        out_d = out_disparity[i]
-        out_c = out_confidence[i]
-        out_d[:] = np.nan
-        out_c[:] = 0.0
-        filled = np.zeros((n_rows, n_cols), np.bool_)
-        for y in range(n_rows):
-            for x in range(n_cols):
-                d = disparity[y, x]
-                ty = y + d * positions[i, 0]
-                tx = x + d * positions[i, 1]
-                if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
-                    continue  # lands outside the view (tested on floats: no integer overflow)
-                y0 = int(np.floor(ty))
-                x0 = int(np.floor(tx))
-                for yy in range(y0, y0 + 2):
-                    if yy < 0 or yy >= n_rows:
-                        continue
-                    for xx in range(x0, x0 + 2):
-                        if xx < 0 or xx >= n_cols:
-                            continue
-                        if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
-                            out_d[yy, xx] = d
-                            out_c[yy, xx] = confidence[y, x]
-                            filled[yy, xx] = True
-        if _fill_holes(out_d, out_c, filled, larger_first) > 0:
-            _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
-
-
-@njit(cache=True, parallel=True)
-def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, out_confidence):
-    """Bin index ``(n, Y, X)`` int16 of each view's surface at ``p + slope * q_i`` (nearest pixel); -1 outside."""
-    n, n_rows, n_cols = warped.shape
-    n_bins = edges.shape[0] - 1
-    for i in prange(n):
-        dy = slope * positions[i, 0]
-        dx = slope * positions[i, 1]
-        if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
-            out_bins[i] = -1
-            out_confidence[i] = 0.0
-            continue
-        for y in range(n_rows):
-            sy = int(np.floor(y + dy + 0.5))
-            for x in range(n_cols):
-                sx = int(np.floor(x + dx + 0.5))
-                if sy < 0 or sy >= n_rows or sx < 0 or sx >= n_cols:
-                    out_bins[i, y, x] = -1
-                    out_confidence[i, y, x] = 0.0
-                    continue
-                d = warped[i, sy, sx]
-                if d != d:
-                    out_bins[i, y, x] = -1
-                    out_confidence[i, y, x] = 0.0
-                    continue
-                b = np.searchsorted(edges, d, side="right") - 1
-                out_bins[i, y, x] = min(max(b, 0), n_bins - 1)
-                out_confidence[i, y, x] = warped_confidence[i, sy, sx]
+        warped = np.empty((n_rows, n_cols), disparity.dtype)
+        warped_confidence = np.empty((n_rows, n_cols), np.float32)
+        filled = np.empty((n_rows, n_cols), np.bool_)
+        _warp_view(disparity, confidence, positions[i, 0], positions[i, 1], larger_first, warped,
+                   warped_confidence, filled)
+        _shifted_bins_view(warped, warped_confidence, slope * positions[i, 0], slope * positions[i, 1], edges,
+                           out_bins[i], out_confidence[i])
 
 
 @njit(cache=True, parallel=True)

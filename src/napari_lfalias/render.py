@@ -277,16 +277,12 @@ class SlopeRenderer:
         # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
         narrow = disparity.astype(np.float32)
         exact = np.array_equal(narrow, disparity)
-        warped = np.empty((n,) + shape, np.float32 if exact else np.float64)
-        warped_conf = np.empty((n,) + shape, np.float32)
-        _run("warp_disparity", narrow if exact else disparity, confidence, self.positions, bool(larger_first),
-             warped, warped_conf)
         plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
         edges, centres, taps = plan
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        _run("shifted_bins", warped, warped_conf, self.positions, slope, edges, bins, sample_conf)
-        del warped, warped_conf
+        _run("view_bins", narrow if exact else disparity, confidence, self.positions, bool(larger_first), slope,
+             edges, bins, sample_conf)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
         fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)

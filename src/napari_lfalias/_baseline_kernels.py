@@ -2,6 +2,8 @@
 
 - a separable box filter with fractional widths (running sums, zero
   outside the image), for one image or every view in parallel;
+- means over a window of its own size around every pixel (a summed-area
+  table);
 - the spread of the views at each pixel's own disparity (which side of a
   depth edge is in front).
 
@@ -17,7 +19,7 @@ from numba import njit, prange
 
 from ._kernels import bilinear_point
 
-__all__ = ["box_image", "box_image_into", "box_views", "view_spread"]
+__all__ = ["box_image", "box_image_into", "window_means", "box_views", "view_spread"]
 
 
 # -- box filter -----------------------------------------------------------------------
@@ -86,6 +88,27 @@ def box_image_into(src, ny, fy, nx, fx, out, tmp):
     _box_pass_x(src, tmp, nx, fx)
     _box_pass_y(tmp.reshape(src.shape[0], src.shape[1] * src.shape[2]),
                 out.reshape(src.shape[0], src.shape[1] * src.shape[2]), ny, fy)
+
+
+@njit(cache=True)
+def window_means(values, y0, y1, x0, x1, out):
+    """The mean of ``values (Y, X, K)`` over each pixel's window ``[y0, y1) x [x0, x1)`` (each ``(Y, X)``
+    int64) into ``out (Y, X, K)`` float64, from a float64 summed-area table made in the order
+    ``np.cumsum`` makes it (down the columns, then along the rows)."""
+    n_rows, n_cols, n_k = values.shape
+    table = np.zeros((n_rows + 1, n_cols + 1, n_k))
+    column = np.zeros((n_cols, n_k))  # the columns' running sums down to the current row
+    for y in range(n_rows):
+        for x in range(n_cols):
+            for k in range(n_k):
+                column[x, k] += values[y, x, k]
+                table[y + 1, x + 1, k] = table[y + 1, x, k] + column[x, k]
+    for y in range(n_rows):
+        for x in range(n_cols):
+            a, b, c, d = y0[y, x], y1[y, x], x0[y, x], x1[y, x]
+            area = float((b - a) * (d - c))
+            for k in range(n_k):
+                out[y, x, k] = (table[b, d, k] - table[a, d, k] - table[b, c, k] + table[a, c, k]) / area
 
 
 @njit(cache=True, parallel=True)

@@ -368,8 +368,9 @@ def _reduce_depth_guided(detector, slope, threshold):
     replaced = ndimage.binary_propagation(detection.mask, structure=np.ones((3, 3), bool),
                                           mask=detection.cv > REPLACE_FRACTION * detection.threshold)
     if replaced.any():
-        image = guide.blend(refocused, guide.rendering(slope).image, replaced)
-        changed = guide.blend_weight(replaced) > 0
+        weight = guide.blend_weight(replaced)
+        image = guide.blend(refocused, guide.rendering(slope).image, replaced, weight)
+        changed = weight > 0
     else:
         image, changed = refocused.copy(), replaced
     level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),

@@ -216,6 +216,8 @@ class SlopeRenderer:
     lf, slope
         The light field and the disparity every rendering brings into
         focus (as in :func:`render_dense_aperture`).
+    naive : ndarray (Y, X, C), optional
+        ``refocus(lf, slope)``, where already made (made here otherwise).
 
     Examples
     --------
@@ -236,7 +238,7 @@ class SlopeRenderer:
     #: Render the whole image where the tiles with their margins would cover more than this share of it.
     MOST_PARTIAL = 0.7
 
-    def __init__(self, lf, slope):
+    def __init__(self, lf, slope, naive=None):
         from .baselines import view_spacing
 
         self.lf = lf
@@ -246,7 +248,7 @@ class SlopeRenderer:
         stack = shift_views(lf, slope)
         self.stack = replace(stack, values=np.ascontiguousarray(stack.values),
                              weights=np.ascontiguousarray(stack.weights))
-        self.naive = refocus(lf, slope)
+        self.naive = refocus(lf, slope) if naive is None else naive
 
     def render(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, within=None,
                elsewhere=None):

@@ -253,7 +253,6 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     intermediate pass.
     """
     n_rows, n_cols, n_ch = values.shape
-    n_layer = n_ch + 3
     n_order = order.shape[0]
     boxes = _bin_boxes(bins, weights, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
@@ -292,10 +291,11 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                     if t > 0.0:
                         _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False)
             continue
+        hides = occluders[o] >= 0
+        n_layer = n_ch + 3 if hides else n_ch + 2  # the last plane: where nearer bins hide this one
         size = (y1 - y0) * (x1 - x0) * n_layer
         scratch[0, :size] = 0.0
         layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
-        hides = occluders[o] >= 0
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
                 if bins[y, x] == k and weights[y, x] > 0.0:

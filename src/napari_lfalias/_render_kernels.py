@@ -6,6 +6,7 @@
   along the row from the farther side; then, for every view, the
   disparity bin of the surface its sample at ``p + slope * q_i`` shows
   (nearest pixel), and the confidence there; -1 outside the view.
+- ``views_differ``: where two such sets of views' bins differ.
 - ``in_focus_colour``: the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
@@ -22,7 +23,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "in_focus_colour", "composite_views"]
+__all__ = ["view_bins", "views_differ", "in_focus_colour", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -162,6 +163,18 @@ def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_
                    warped_confidence, filled)
         _shifted_bins_view(warped, warped_confidence, slope * positions[i, 0], slope * positions[i, 1], edges,
                            out_bins[i], out_confidence[i])
+
+
+@njit(cache=True, parallel=True)
+def views_differ(bins, other_bins, confidence, other_confidence, out):
+    """``out (Y, X)`` bool: whether any view's bin or confidence ``(n, Y, X)`` differs between the two."""
+    n, n_rows, n_cols = bins.shape
+    for y in prange(n_rows):
+        out[y] = False
+        for i in range(n):
+            for x in range(n_cols):
+                if bins[i, y, x] != other_bins[i, y, x] or confidence[i, y, x] != other_confidence[i, y, x]:
+                    out[y, x] = True
 
 
 @njit(cache=True, parallel=True)

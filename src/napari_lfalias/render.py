@@ -358,8 +358,8 @@ class Layers:
         same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
         if self.bins is not other.bins:
             raise ParameterError("Layers.differs_from compares layers with the same bins (layers(bins_of=...))")
-        inputs = np.any(self.view_bins != other.view_bins, axis=0)
-        inputs |= np.any(self.view_confidence != other.view_confidence, axis=0)
+        inputs = np.empty(self.disparity.shape, bool)
+        _run("views_differ", self.view_bins, other.view_bins, self.view_confidence, other.view_confidence, inputs)
         inputs |= self.has_fill != other.has_fill
         inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
         reach = self.reach

@@ -59,21 +59,16 @@ def _box_pass_y(src, out, n, f):
     for y in range(min(n, n_rows - 1) + 1):
         for m in range(n_m):
             window[m] += src[y, m]
+    # rows outside the image read as zeros; one branch-free loop per row (the same sums in the same order)
+    zeros = np.zeros(n_m, src.dtype)
     for y in range(n_rows):
         low, high = y - n - 1, y + n + 1
+        below = src[low] if low >= 0 else zeros
+        above = src[high] if high < n_rows else zeros  # an end tap, and the row that enters the window
+        leaving = src[y - n] if y - n >= 0 else zeros
         for m in range(n_m):
-            edge = 0.0
-            if low >= 0:
-                edge += src[low, m]
-            if high < n_rows:
-                edge += src[high, m]
-            out[y, m] = window[m] + f * edge
-        if high < n_rows:
-            for m in range(n_m):
-                window[m] += src[high, m]
-        if y - n >= 0:
-            for m in range(n_m):
-                window[m] -= src[y - n, m]
+            out[y, m] = window[m] + f * (0.0 + below[m] + above[m])
+            window[m] = (window[m] + above[m]) - leaving[m]
 
 
 @njit(cache=True)

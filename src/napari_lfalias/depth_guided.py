@@ -409,9 +409,9 @@ class _Windows:
         rows, cols = sides.shape
         half = sides // 2
         y, x = np.mgrid[:rows, :cols]
-        self.bounds = tuple(np.ascontiguousarray(bound, np.int64) for bound in (  # y0, y1, x0, x1 (ends excluded)
-            np.maximum(y - half, 0), np.minimum(y + half + 1, rows), np.maximum(x - half, 0),
-            np.minimum(x + half + 1, cols)))
+        bounds = (np.maximum(y - half, 0), np.minimum(y + half + 1, rows), np.maximum(x - half, 0),
+                  np.minimum(x + half + 1, cols))  # ends excluded
+        self.y0, self.y1, self.x0, self.x1 = (np.ascontiguousarray(bound, np.int64) for bound in bounds)
         self.single = sides <= 1
         self.widest = int(sides.max(initial=1))
 
@@ -422,7 +422,7 @@ class _Windows:
 
         values = np.ascontiguousarray(values)
         out = np.empty(values.shape, np.float64)
-        window_means(values, *self.bounds, out)
+        window_means(values, self.y0, self.y1, self.x0, self.x1, out)
         return out
 
     def with_mean_of(self, target_means, image):

@@ -270,3 +270,27 @@ def test_layers_compare_only_in_the_same_bins():
     renderer = SlopeRenderer(scene.lightfield, 4.0)
     with pytest.raises(ParameterError, match="bins"):
         renderer.layers(scene.disparity).differs_from(renderer.layers(scene.disparity))
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 9, 32])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
+    # the kernel guesses each bin from the edges' spacing and corrects the guess against the edges
+    from napari_lfalias._render_kernels import view_bins
+
+    rng = np.random.default_rng(count)
+    inner = np.linspace(-1.3, 2.9, count + 1)
+    edges = inner.copy()
+    edges[0], edges[-1] = -np.inf, np.inf
+    values = np.concatenate([rng.uniform(-4.0, 6.0, 4000), inner, np.nextafter(inner, -np.inf),
+                             np.nextafter(inner, np.inf), [1e30, -1e30]]).astype(dtype)
+    values = np.sort(values)[::-1]
+    disparity = values[None].copy()
+    bins = np.empty((1,) + disparity.shape, np.int16)
+    confidence = np.empty((1,) + disparity.shape, np.float32)
+    # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
+    # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
+    view_bins(disparity, np.ones(disparity.shape, np.float32), np.zeros((1, 2)), False, 0.0, edges, bins,
+              confidence)
+    expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
+    np.testing.assert_array_equal(bins[0, 0], expected)

@@ -2,6 +2,8 @@
 
 - a separable box filter with fractional widths (running sums, zero
   outside the image), for one image or every view in parallel;
+- means over a window of its own size around every pixel (a summed-area
+  table);
 - the spread of the views at each pixel's own disparity (which side of a
   depth edge is in front).
 
@@ -17,7 +19,7 @@ from numba import njit, prange
 
 from ._kernels import bilinear_point
 
-__all__ = ["box_image", "box_views", "view_spread"]
+__all__ = ["box_image", "box_image_into", "window_means", "box_views", "view_spread"]
 
 
 # -- box filter -----------------------------------------------------------------------
@@ -57,30 +59,51 @@ def _box_pass_y(src, out, n, f):
     for y in range(min(n, n_rows - 1) + 1):
         for m in range(n_m):
             window[m] += src[y, m]
+    # rows outside the image read as zeros; one branch-free loop per row (the same sums in the same order)
+    zeros = np.zeros(n_m, src.dtype)
     for y in range(n_rows):
         low, high = y - n - 1, y + n + 1
+        below = src[low] if low >= 0 else zeros
+        above = src[high] if high < n_rows else zeros  # an end tap, and the row that enters the window
+        leaving = src[y - n] if y - n >= 0 else zeros
         for m in range(n_m):
-            edge = 0.0
-            if low >= 0:
-                edge += src[low, m]
-            if high < n_rows:
-                edge += src[high, m]
-            out[y, m] = window[m] + f * edge
-        if high < n_rows:
-            for m in range(n_m):
-                window[m] += src[high, m]
-        if y - n >= 0:
-            for m in range(n_m):
-                window[m] -= src[y - n, m]
+            out[y, m] = window[m] + f * (0.0 + below[m] + above[m])
+            window[m] = (window[m] + above[m]) - leaving[m]
 
 
 @njit(cache=True)
 def box_image(src, ny, fy, nx, fx, out):
     """Separable box sum of one image ``src (Y, X, K)`` (contiguous float32) into ``out``."""
-    tmp = np.empty(src.shape, np.float32)
+    box_image_into(src, ny, fy, nx, fx, out, np.empty(src.shape, np.float32))
+
+
+@njit(cache=True)
+def box_image_into(src, ny, fy, nx, fx, out, tmp):
+    """:func:`box_image` with the scratch ``tmp`` (contiguous, the shape of ``src``) given."""
     _box_pass_x(src, tmp, nx, fx)
     _box_pass_y(tmp.reshape(src.shape[0], src.shape[1] * src.shape[2]),
                 out.reshape(src.shape[0], src.shape[1] * src.shape[2]), ny, fy)
+
+
+@njit(cache=True)
+def window_means(values, y0, y1, x0, x1, out):
+    """The mean of ``values (Y, X, K)`` over each pixel's window ``[y0, y1) x [x0, x1)`` (each ``(Y, X)``
+    int64) into ``out (Y, X, K)`` float64, from a float64 summed-area table made in the order
+    ``np.cumsum`` makes it (down the columns, then along the rows)."""
+    n_rows, n_cols, n_k = values.shape
+    table = np.zeros((n_rows + 1, n_cols + 1, n_k))
+    column = np.zeros((n_cols, n_k))  # the columns' running sums down to the current row
+    for y in range(n_rows):
+        for x in range(n_cols):
+            for k in range(n_k):
+                column[x, k] += values[y, x, k]
+                table[y + 1, x + 1, k] = table[y + 1, x, k] + column[x, k]
+    for y in range(n_rows):
+        for x in range(n_cols):
+            a, b, c, d = y0[y, x], y1[y, x], x0[y, x], x1[y, x]
+            area = float((b - a) * (d - c))
+            for k in range(n_k):
+                out[y, x, k] = (table[b, d, k] - table[a, d, k] - table[b, c, k] + table[a, c, k]) / area
 
 
 @njit(cache=True, parallel=True)

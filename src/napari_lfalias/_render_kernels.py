@@ -1,12 +1,12 @@
 """Numba kernels of the dense-aperture renderer (:mod:`napari_lfalias.render`).
 
-- ``warp_disparity``: the centre-of-aperture disparity map forward-warped
+- ``view_bins``: the centre-of-aperture disparity map forward-warped
   into every view (each centre pixel splats onto the four pixels around
   where it lands; the nearer surface wins), holes (disocclusions) filled
-  along the row from the farther side.
-- ``shifted_bins``: for every view, the disparity bin of the surface its
-  sample at ``p + slope * q_i`` shows (nearest pixel), and the confidence
-  there; -1 outside the view.
+  along the row from the farther side; then, for every view, the
+  disparity bin of the surface its sample at ``p + slope * q_i`` shows
+  (nearest pixel), and the confidence there; -1 outside the view.
+- ``views_differ``: where two such sets of views' bins differ.
 - ``in_focus_colour``: the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._baseline_kernels import box_image
+from ._baseline_kernels import box_image_into
 
-__all__ = ["warp_disparity", "shifted_bins", "in_focus_colour", "composite_views"]
+__all__ = ["view_bins", "views_differ", "in_focus_colour", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -68,70 +68,113 @@ def _fill_holes(values, confidence, filled, larger_first):
     return unfilled
 
 
+@njit(cache=True)
+def _warp_view(disparity, confidence, q_y, q_x, larger_first, out_d, out_c, filled):
+    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into the view at ``(q_y, q_x)`` (``out_d``,
+    ``out_c``); holes are filled along rows, then, where a row had nothing to fill from, along columns
+    (:func:`_fill_holes`); a view nothing lands in stays NaN. ``filled (Y, X)`` is scratch."""
+    n_rows, n_cols = disparity.shape
+    out_d[:] = np.nan
+    out_c[:] = 0.0
+    filled[:] = False
+    for y in range(n_rows):
+        for x in range(n_cols):
+            d = disparity[y, x]
+            ty = y + d * q_y
+            tx = x + d * q_x
+            if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
+                continue  # lands outside the view (tested on floats: no integer overflow)
+            y0 = int(np.floor(ty))
+            x0 = int(np.floor(tx))
+            for yy in range(y0, y0 + 2):
+                if yy < 0 or yy >= n_rows:
+                    continue
+                for xx in range(x0, x0 + 2):
+                    if xx < 0 or xx >= n_cols:
+                        continue
+                    if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
+                        out_d[yy, xx] = d
+                        out_c[yy, xx] = confidence[y, x]
+                        filled[yy, xx] = True
+    if _fill_holes(out_d, out_c, filled, larger_first) > 0:
+        _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+
+
+@njit(cache=True, inline="always")
+def _bin_of(d, edges):
+    """``searchsorted(edges, d, side="right") - 1`` clipped to the bins, for ``edges`` evenly spaced but
+    for the outer two (made infinite): a guess from the spacing, corrected against the edges."""
+    n_bins = edges.shape[0] - 1
+    b = 0
+    step = edges[2] - edges[1] if n_bins > 2 else 0.0
+    if step > 0.0:
+        guess = (d - edges[1]) / step + 1.0
+        if guess >= n_bins - 1:
+            b = n_bins - 1
+        elif guess > 0.0:
+            b = int(guess)
+    while b > 0 and edges[b] > d:
+        b -= 1
+    while b < n_bins - 1 and edges[b + 1] <= d:
+        b += 1
+    return b
+
+
+@njit(cache=True)
+def _shifted_bins_view(warped, warped_confidence, dy, dx, edges, out_bins, out_confidence):
+    """The bin ``(Y, X)`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
+    warped disparity ``warped``; -1 outside the view), and its confidence."""
+    n_rows, n_cols = warped.shape
+    out_bins[:] = -1
+    out_confidence[:] = 0.0
+    if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
+        return
+    columns = np.empty(n_cols, np.int64)
+    for x in range(n_cols):
+        columns[x] = int(np.floor(x + dx + 0.5))
+    for y in range(n_rows):
+        sy = int(np.floor(y + dy + 0.5))
+        if sy < 0 or sy >= n_rows:
+            continue
+        for x in range(n_cols):
+            sx = columns[x]
+            if sx < 0 or sx >= n_cols:
+                continue
+            d = warped[sy, sx]
+            if d != d:
+                continue
+            out_bins[y, x] = _bin_of(d, edges)
+            out_confidence[y, x] = warped_confidence[sy, sx]
+
+
 @njit(cache=True, parallel=True)
-def warp_disparity(disparity, confidence, positions, larger_first, out_disparity, out_confidence):
-    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into every view ``(n, Y, X)``; holes are filled
-    along rows, then, where a row had nothing to fill from, along columns (:func:`_fill_holes`); a view
-    nothing lands in stays NaN. ``out_disparity`` may be float32 where the disparities are float32 values."""
+def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
+    """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
+    ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
+    forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
+    shift (:func:`_shifted_bins_view`); views in parallel."""
     n = positions.shape[0]
     n_rows, n_cols = disparity.shape
     for i in prange(n):
-        out_d = out_disparity[i]
-        out_c = out_confidence[i]
-        out_d[:] = np.nan
-        out_c[:] = 0.0
-        filled = np.zeros((n_rows, n_cols), np.bool_)
-        for y in range(n_rows):
-            for x in range(n_cols):
-                d = disparity[y, x]
-                ty = y + d * positions[i, 0]
-                tx = x + d * positions[i, 1]
-                if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
-                    continue  # lands outside the view (tested on floats: no integer overflow)
-                y0 = int(np.floor(ty))
-                x0 = int(np.floor(tx))
-                for yy in range(y0, y0 + 2):
-                    if yy < 0 or yy >= n_rows:
-                        continue
-                    for xx in range(x0, x0 + 2):
-                        if xx < 0 or xx >= n_cols:
-                            continue
-                        if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
-                            out_d[yy, xx] = d
-                            out_c[yy, xx] = confidence[y, x]
-                            filled[yy, xx] = True
-        if _fill_holes(out_d, out_c, filled, larger_first) > 0:
-            _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+        warped = np.empty((n_rows, n_cols), disparity.dtype)
+        warped_confidence = np.empty((n_rows, n_cols), np.float32)
+        filled = np.empty((n_rows, n_cols), np.bool_)
+        _warp_view(disparity, confidence, positions[i, 0], positions[i, 1], larger_first, warped,
+                   warped_confidence, filled)
+        _shifted_bins_view(warped, warped_confidence, slope * positions[i, 0], slope * positions[i, 1], edges,
+                           out_bins[i], out_confidence[i])
 
 
 @njit(cache=True, parallel=True)
-def shifted_bins(warped, warped_confidence, positions, slope, edges, out_bins, out_confidence):
-    """Bin index ``(n, Y, X)`` int16 of each view's surface at ``p + slope * q_i`` (nearest pixel); -1 outside."""
-    n, n_rows, n_cols = warped.shape
-    n_bins = edges.shape[0] - 1
-    for i in prange(n):
-        dy = slope * positions[i, 0]
-        dx = slope * positions[i, 1]
-        if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
-            out_bins[i] = -1
-            out_confidence[i] = 0.0
-            continue
-        for y in range(n_rows):
-            sy = int(np.floor(y + dy + 0.5))
+def views_differ(bins, other_bins, confidence, other_confidence, out):
+    """``out (Y, X)`` bool: whether any view's bin or confidence ``(n, Y, X)`` differs between the two."""
+    n, n_rows, n_cols = bins.shape
+    for y in prange(n_rows):
+        out[y] = False
+        for i in range(n):
             for x in range(n_cols):
-                sx = int(np.floor(x + dx + 0.5))
-                if sy < 0 or sy >= n_rows or sx < 0 or sx >= n_cols:
-                    out_bins[i, y, x] = -1
-                    out_confidence[i, y, x] = 0.0
-                    continue
-                d = warped[i, sy, sx]
-                if d != d:
-                    out_bins[i, y, x] = -1
-                    out_confidence[i, y, x] = 0.0
-                    continue
-                b = np.searchsorted(edges, d, side="right") - 1
-                out_bins[i, y, x] = min(max(b, 0), n_bins - 1)
-                out_confidence[i, y, x] = warped_confidence[i, sy, sx]
+                if bins[i, y, x] != other_bins[i, y, x] or confidence[i, y, x] != other_confidence[i, y, x]:
+                    out[y, x] = True
 
 
 @njit(cache=True, parallel=True)
@@ -185,9 +228,20 @@ def _bin_boxes(bins, weights, n_bins):
     return boxes
 
 
+@njit(cache=True, inline="always")
+def _accumulate(num, den, blurred, trust, y, x, t, colour, visible, confidence, blur):
+    """Add a layer's cell at ``(y, x)`` (colour ``colour``, coverage ``visible``) by the weight ``t``."""
+    for c in range(num.shape[2]):
+        num[y, x, c] += t * colour[c]
+    den[y, x] += t * visible
+    if blur:
+        blurred[y, x] += t * visible
+    trust[y, x] += t * confidence
+
+
 @njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
-                    trust, covers, seen):
+                    trust, covers, seen, scratch):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -201,12 +255,15 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     occluder, which is what the rays between the views see there (left out,
     the occluder's colour took the gap: a halo along its outline). Layers
     hold unit coverage; the view's cell at a pixel counts by the weight of
-    the view's sample there.
+    the view's sample there. A bin in focus (no blur) is its samples as
+    they are: it is added without a layer.
 
-    ``covers (K, Y, X)`` and ``seen (Y, X)`` are scratch: each bin's
-    blurred coverage (within its reach), and the share of the cell the bins
-    composited so far leave free, brought up to ``occluders[o]`` as ``o``
-    advances (``occluders`` never decreases along ``order``).
+    ``covers (K, Y, X)``, ``seen (Y, X)`` and ``scratch (3, Y * X * (C + 3))``
+    are scratch: each bin's blurred coverage (within its reach), the share
+    of the cell the bins composited so far leave free, brought up to
+    ``occluders[o]`` as ``o`` advances (``occluders`` never decreases along
+    ``order``), and a blurred bin's layer, its box sum and the box's
+    intermediate pass.
     """
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
@@ -215,6 +272,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     for o in range(n_order):
         rank[order[o]] = o
     reach = np.full((n_order, 4), -1, np.int64)  # each bin's blurred extent y0, y1, x0, x1 (exclusive ends)
+    one = np.float32(1.0)
     seen[:] = 1.0
     lagged = -1  # seen holds the bins order[:lagged + 1]
     for o in range(n_order):
@@ -235,7 +293,22 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
         x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
         reach[o, 0], reach[o, 1], reach[o, 2], reach[o, 3] = y0, y1, x0, x1
-        layer = np.zeros((y1 - y0, x1 - x0, n_ch + 3), np.float32)
+        if not blur:  # the samples themselves, unit coverage
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if bins[y, x] != k or not weights[y, x] > 0.0:
+                        covers[o, y, x] = 0.0
+                        continue
+                    covers[o, y, x] = 1.0
+                    t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]
+                    if t > 0.0:
+                        _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False)
+            continue
+        hides = occluders[o] >= 0
+        n_layer = n_ch + 3 if hides else n_ch + 2  # the last plane: where nearer bins hide this one
+        size = (y1 - y0) * (x1 - x0) * n_layer
+        scratch[0, :size] = 0.0
+        layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
                 if bins[y, x] == k and weights[y, x] > 0.0:
@@ -243,24 +316,23 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                         layer[y - y0, x - x0, c] = values[y, x, c]
                     layer[y - y0, x - x0, n_ch] = 1.0
                     layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
-        hides = blur and occluders[o] >= 0
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     b = bins[y, x]
                     if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
                         layer[y - y0, x - x0, n_ch + 2] = 1.0
-        if blur:
-            summed = np.empty_like(layer)
-            box_image(layer, int(ny), fy, int(nx), fx, summed)
-            area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
-            layer = summed / area
+        summed = scratch[1, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        box_image_into(layer, int(ny), fy, int(nx), fx, summed, scratch[2, :size].reshape(summed.shape))
+        area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
+        means = scratch[1, :size]  # the box sums become means in place
+        for j in range(size):
+            means[j] /= area
         for y in range(y0, y1):
             for x in range(x0, x1):
-                cell = layer[y - y0, x - x0]
-                visible = cell[n_ch]
+                visible = summed[y - y0, x - x0, n_ch]
                 # what the nearer bins hide of this surface has the colour of what is seen of it nearby
-                scale = (visible + cell[n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
+                scale = (visible + summed[y - y0, x - x0, n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
                 cover = min(visible * scale, 1.0)
                 covers[o, y, x] = cover
                 if cover <= 0.0:
@@ -269,12 +341,8 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                 if t <= 0.0:
                     continue
                 t *= scale
-                for c in range(n_ch):
-                    num[y, x, c] += t * cell[c]
-                den[y, x] += t * visible
-                if blur:
-                    blurred[y, x] += t * visible
-                trust[y, x] += t * cell[n_ch + 1]
+                _accumulate(num, den, blurred, trust, y, x, t, summed[y - y0, x - x0], visible,
+                            summed[y - y0, x - x0, n_ch + 1], True)
     while lagged < n_order - 1:  # what every bin leaves free
         lagged += 1
         y0, y1, x0, x1 = reach[lagged, 0], reach[lagged, 1], reach[lagged, 2], reach[lagged, 3]
@@ -285,10 +353,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         for x in range(n_cols):
             t = seen[y, x] * weights[y, x]
             if t > 0.0 and has_fill[y, x]:
-                for c in range(n_ch):
-                    num[y, x, c] += t * fill[y, x, c]
-                den[y, x] += t
-                trust[y, x] += t
+                _accumulate(num, den, blurred, trust, y, x, t, fill[y, x], one, one, False)
 
 
 @njit(cache=True, parallel=True)
@@ -307,6 +372,7 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
     for chunk in prange(n_chunks):
         covers = np.empty((order.shape[0], n_rows, n_cols), np.float32)
         seen = np.empty((n_rows, n_cols), np.float32)
+        scratch = np.empty((3, n_rows * n_cols * (values.shape[3] + 3)), np.float32)
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
-                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen)
+                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch)

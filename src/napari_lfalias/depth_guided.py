@@ -329,7 +329,12 @@ class DepthGuide:
 
         # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
         rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
-        return self._kept(slope, "renderer", lambda: SlopeRenderer(self.lf, rendered_slope))
+        same = rendered_slope == slope and self.lf is self._data  # the renderer's naive refocus is ours
+
+        def make():
+            return SlopeRenderer(self.lf, rendered_slope, naive=self.naive(slope) if same else None)
+
+        return self._kept(slope, "renderer", make)
 
     def _in_focus(self, slope):
         """The surfaces the views show in focus at ``slope``: in focus, whatever the estimate says."""
@@ -418,11 +423,12 @@ class DepthGuide:
         weight[weight < 0.02] = 0.0
         return weight
 
-    def blend(self, naive, rendered, mask):
-        """``naive`` with ``rendered`` in the ``mask`` pixels, by :meth:`blend_weight`."""
+    def blend(self, naive, rendered, mask, weight=None):
+        """``naive`` with ``rendered`` in the ``mask`` pixels, by :meth:`blend_weight` (``weight``: that of
+        ``mask``, where already made)."""
         if not mask.any():
             return naive.copy()
-        weight = self.blend_weight(mask)
+        weight = self.blend_weight(mask) if weight is None else weight
         return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)
 
 
@@ -535,19 +541,21 @@ class _Windows:
         rows, cols = sides.shape
         half = sides // 2
         y, x = np.mgrid[:rows, :cols]
-        self.y0, self.y1 = np.maximum(y - half, 0), np.minimum(y + half + 1, rows)
-        self.x0, self.x1 = np.maximum(x - half, 0), np.minimum(x + half + 1, cols)
-        self.area = ((self.y1 - self.y0) * (self.x1 - self.x0))[..., None].astype(np.float64)
+        bounds = (np.maximum(y - half, 0), np.minimum(y + half + 1, rows), np.maximum(x - half, 0),
+                  np.minimum(x + half + 1, cols))  # ends excluded
+        self.y0, self.y1, self.x0, self.x1 = (np.ascontiguousarray(bound, np.int64) for bound in bounds)
         self.single = sides <= 1
         self.widest = int(sides.max(initial=1))
 
     def means(self, values):
         """The mean of ``values (Y, X, C)`` over each pixel's window (a summed-area table: any side costs
         the same), float64."""
-        table = np.zeros((values.shape[0] + 1, values.shape[1] + 1) + values.shape[2:])
-        np.cumsum(np.cumsum(values, axis=0, dtype=np.float64), axis=1, out=table[1:, 1:])
-        y0, y1, x0, x1 = self.y0, self.y1, self.x0, self.x1
-        return (table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]) / self.area
+        from ._baseline_kernels import window_means
+
+        values = np.ascontiguousarray(values)
+        out = np.empty(values.shape, np.float64)
+        window_means(values, self.y0, self.y1, self.x0, self.x1, out)
+        return out
 
     def with_mean_of(self, target_means, image):
         """``image`` with its window means made ``target_means``; single-pixel windows left as they are."""

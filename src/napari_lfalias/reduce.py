@@ -366,8 +366,9 @@ def _reduce_depth_guided(detector, slope, threshold):
     yield (3, 4)
     replaced = _with_fringe(detection, guide, slope)
     if replaced.any():
-        image = guide.blend(refocused, guide.rendering(slope).image, replaced)
-        changed = guide.blend_weight(replaced) > 0
+        weight = guide.blend_weight(replaced)
+        image = guide.blend(refocused, guide.rendering(slope).image, replaced, weight)
+        changed = weight > 0
     else:
         image, changed = refocused.copy(), replaced
     level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),

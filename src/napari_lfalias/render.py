@@ -216,6 +216,8 @@ class SlopeRenderer:
     lf, slope
         The light field and the disparity every rendering brings into
         focus (as in :func:`render_dense_aperture`).
+    naive : ndarray (Y, X, C), optional
+        ``refocus(lf, slope)``, where already made (made here otherwise).
 
     Examples
     --------
@@ -236,7 +238,7 @@ class SlopeRenderer:
     #: Render the whole image where the tiles with their margins would cover more than this share of it.
     MOST_PARTIAL = 0.7
 
-    def __init__(self, lf, slope):
+    def __init__(self, lf, slope, naive=None):
         from .baselines import view_spacing
 
         self.lf = lf
@@ -246,7 +248,7 @@ class SlopeRenderer:
         stack = shift_views(lf, slope)
         self.stack = replace(stack, values=np.ascontiguousarray(stack.values),
                              weights=np.ascontiguousarray(stack.weights))
-        self.naive = refocus(lf, slope)
+        self.naive = refocus(lf, slope) if naive is None else naive
 
     def render(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, within=None,
                elsewhere=None):
@@ -277,16 +279,12 @@ class SlopeRenderer:
         # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
         narrow = disparity.astype(np.float32)
         exact = np.array_equal(narrow, disparity)
-        warped = np.empty((n,) + shape, np.float32 if exact else np.float64)
-        warped_conf = np.empty((n,) + shape, np.float32)
-        _run("warp_disparity", narrow if exact else disparity, confidence, self.positions, bool(larger_first),
-             warped, warped_conf)
         plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
         edges, centres, taps = plan
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        _run("shifted_bins", warped, warped_conf, self.positions, slope, edges, bins, sample_conf)
-        del warped, warped_conf
+        _run("view_bins", narrow if exact else disparity, confidence, self.positions, bool(larger_first), slope,
+             edges, bins, sample_conf)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
         fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)
@@ -360,8 +358,8 @@ class Layers:
         same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
         if self.bins is not other.bins:
             raise ParameterError("Layers.differs_from compares layers with the same bins (layers(bins_of=...))")
-        inputs = np.any(self.view_bins != other.view_bins, axis=0)
-        inputs |= np.any(self.view_confidence != other.view_confidence, axis=0)
+        inputs = np.empty(self.disparity.shape, bool)
+        _run("views_differ", self.view_bins, other.view_bins, self.view_confidence, other.view_confidence, inputs)
         inputs |= self.has_fill != other.has_fill
         inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
         reach = self.reach

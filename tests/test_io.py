@@ -324,11 +324,22 @@ def test_killed_overwrites_never_leave_the_output_missing(tmp_path, big_store):
     assert temporaries(tmp_path) == []  # the killed writers' temporaries went with the next write
 
 
+def _when_writing(folder, child, timeout=60.0):
+    """Wait until ``child`` has a temporary output under ``folder`` (its imports done, its write begun)."""
+    end = time.monotonic() + timeout
+    while not temporaries(folder) and child.poll() is None and time.monotonic() < end:
+        time.sleep(0.01)
+
+
 def test_ctrl_c_during_a_zarr_write_is_one_line_and_leaves_nothing(tmp_path, big_store):
+    # Interrupted at fixed times after the start, a slow machine's child could still be importing (a
+    # traceback from an import, not the write's handling): the delays count from the write's start.
     default_sigint = {"preexec_fn": lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)}
-    for delay in (0.7, 1.1, 1.5):
+    interrupted = 0
+    for delay in (0.0, 0.03, 0.08):
         out = tmp_path / f"out{delay}.zarr"
         child = _convert([big_store, "-o", out], **default_sigint)
+        _when_writing(tmp_path, child)
         time.sleep(delay)
         child.send_signal(signal.SIGINT)
         _, err = child.communicate()
@@ -336,6 +347,8 @@ def test_ctrl_c_during_a_zarr_write_is_one_line_and_leaves_nothing(tmp_path, big
             continue
         assert child.returncode == 130 and err == "lfalias: interrupted\n", err
         assert not out.exists() and temporaries(tmp_path) == []
+        interrupted += 1
+    assert interrupted  # else the writes were too quick to interrupt, and nothing was tested
 
 
 def test_a_full_disk_during_a_zarr_write_is_one_line_naming_the_output(tmp_path, big_store):

@@ -231,7 +231,7 @@ class DepthGuide:
 
             return _larger_is_nearer(np.ascontiguousarray(self.lf.views()),
                                      np.ascontiguousarray(self.lf.flat_positions()),
-                                     self._in_focus_at(slope, self.estimate[0]).astype(np.float64))
+                                     self._rendered_disparity(slope).astype(np.float64))
 
         return self._kept(slope, "larger first", make)
 
@@ -278,7 +278,7 @@ class DepthGuide:
                 return [self.rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
             images = []
-            for moved in moved_edges(self._in_focus_at(slope, self.estimate[0]), renderer.spacing):
+            for moved in moved_edges(self._rendered_disparity(slope), renderer.spacing):
                 layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
                                          larger_first=self.larger_first(slope), bins_of=main)
                 within = used & layers.differs_from(main)
@@ -320,15 +320,13 @@ class DepthGuide:
     def _layers(self, slope):
         """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
         return self._kept(slope, "layers", lambda: self._renderer(slope).layers(
-            self._in_focus_at(slope, self.estimate[0]), self._confidence_at(slope), larger_first=self.larger_first(slope)))
+            self._rendered_disparity(slope), self._confidence_at(slope), larger_first=self.larger_first(slope)))
 
     def _renderer(self, slope):
         """The unit-scaled light field's :class:`~napari_lfalias.render.SlopeRenderer` at ``slope``."""
-        from ._kernels import MAX_SHIFT
         from .render import SlopeRenderer
 
-        # A view shifted MAX_SHIFT pixels sees nothing, as at any larger slope; float32 holds it.
-        rendered_slope = float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
+        rendered_slope = _rendered_slope(slope)
         same = rendered_slope == slope and self.lf is self._data  # the renderer's naive refocus is ours
 
         def make():
@@ -341,7 +339,13 @@ class DepthGuide:
         return self._kept(slope, "in focus", lambda: self.focus_test(slope))
 
     def _in_focus_at(self, slope, disparity):
-        return np.where(self._in_focus(slope), np.float32(self._renderer(slope).slope), disparity)
+        """``disparity`` with the surfaces the views show in focus at ``slope`` put at the rendered slope."""
+        return np.where(self._in_focus(slope), np.float32(_rendered_slope(slope)), disparity)
+
+    def _rendered_disparity(self, slope):
+        """The disparity the :meth:`rendering` at ``slope`` uses: the estimate, with what the views show in
+        focus there (kept per slope)."""
+        return self._kept(slope, "rendered disparity", lambda: self._in_focus_at(slope, self.estimate[0]))
 
     def _confidence_at(self, slope):
         return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])
@@ -562,6 +566,14 @@ class _Windows:
         shift = self.means(image) - target_means
         shift[self.single] = 0.0
         return (image - shift).astype(np.float32)
+
+
+def _rendered_slope(slope):
+    """The slope the renderer renders for ``slope``: a view shifted ``MAX_SHIFT`` pixels sees nothing, as at
+    any larger slope, and float32 holds it."""
+    from ._kernels import MAX_SHIFT
+
+    return float(np.clip(slope, -MAX_SHIFT, MAX_SHIFT))
 
 
 #: Data peaks within which the renderer's float32 sums neither overflow nor lose the data to underflow.

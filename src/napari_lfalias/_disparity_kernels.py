@@ -531,9 +531,11 @@ def unshear_min(filtered, j0, shear_y, shear_x, centre_y, centre_x, y0, x0, insi
 
 
 @njit(cache=True, parallel=True)
-def winner_scan(aggregated, apart, best, least, second):
+def winner_scan(aggregated, apart, best, least, second, second_at):
     """Per pixel of ``aggregated (m, Y, X)``: the index of its least value (``best``), that value
-    (``least``), and the least value more than ``apart`` indices from it (``second``, ``inf`` if none)."""
+    (``least``), the least value more than ``apart`` indices from it (``second``, ``inf`` if none) and
+    where that is (``second_at``; -1 if none, or if it is not a local minimum of the curve: a valley's
+    side, not a valley of its own)."""
     m, n_rows, n_cols = aggregated.shape
     for y in prange(n_rows):
         for x in range(n_cols):
@@ -544,12 +546,18 @@ def winner_scan(aggregated, apart, best, least, second):
                     low = aggregated[j, y, x]
                     b = j
             other = np.inf
+            at = -1
             for j in range(m):
                 if abs(j - b) > apart and aggregated[j, y, x] < other:
                     other = aggregated[j, y, x]
+                    at = j
+            if at >= 0 and ((at > 0 and aggregated[at - 1, y, x] < other)
+                            or (at < m - 1 and aggregated[at + 1, y, x] < other)):
+                at = -1
             best[y, x] = b
             least[y, x] = low
             second[y, x] = other
+            second_at[y, x] = at
 
 
 @njit(cache=True, parallel=True)

@@ -321,6 +321,14 @@ def test_depth_writes_the_estimate_of_the_api_with_its_confidence_and_settings(c
     assert disparity.dtype == confidence.dtype == np.float32
     np.testing.assert_array_equal(disparity, expected.disparity)
     np.testing.assert_array_equal(confidence, expected.confidence)
+    alternative = tifffile.imread(tmp_path / "d_alternative.tif")
+    np.testing.assert_array_equal(alternative, np.where(np.isfinite(expected.alternative), expected.alternative,
+                                                        expected.disparity))
+    assert (alternative != disparity).any()  # the brick wall is periodic: a second fit a period away somewhere
+    # read back, it is the estimate's alternative again
+    from napari_lfalias._cli.depth import read_disparity
+    again = read_disparity(out).for_views(disparity.shape)
+    np.testing.assert_array_equal(again.alternative, expected.alternative)
     # The estimate itself is right: the wall at -4 and the cube at +4, away from the cube's edges.
     assert np.median(disparity[:8]) == pytest.approx(-4, abs=0.1)
     assert np.median(disparity[30:40, 28:38]) == pytest.approx(4, abs=0.1)
@@ -333,7 +341,7 @@ def test_depth_writes_the_estimate_of_the_api_with_its_confidence_and_settings(c
     assert f"disparity {low:+.3g} .. {high:+.3g} px per view step" in stdout
     assert f"median confidence {float(np.median(expected.confidence)):.2f}" in stdout
     assert "disparity: 5/5 steps finished" in err
-    for name in ("d.tif", "d_confidence.tif", "d.png"):
+    for name in ("d.tif", "d_confidence.tif", "d_alternative.tif", "d.png"):
         assert f"wrote {tmp_path / name}" in stdout
 
 

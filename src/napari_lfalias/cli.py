@@ -23,7 +23,7 @@ examples:
   lfalias demo                             # a real capture end to end; the paper's brick room vs its truth
   lfalias info capture.tif --white white.tif                   # what a file or folder holds
   lfalias convert capture.tif --white white.tif --dark dark.tif -o views.tif
-  lfalias depth views.tif -o depth.tif                         # + depth_confidence.tif, depth.png
+  lfalias depth views.tif -o depth.tif                         # + depth_confidence.tif, _alternative.tif, .png
   lfalias refocus views.tif --slope 0.5 -o refocus.png
   lfalias refocus views.tif --slope 0.5 --antialias --disparity depth.tif -o dense.png
   lfalias detect views.tif --slope 0.5 -o score.tif            # + score_mask.tif
@@ -233,7 +233,8 @@ def build_parser():
     sub = command("depth", "estimate the disparity of every pixel from the light field itself",
                   "lfalias depth views.tif -o depth.tif --range -2 2",
                   ": a float32 TIFF (pixels per view step; refocus --slope D brings a pixel of disparity D into "
-                  "focus), its confidence in [0, 1] beside it (<name>_confidence.tif) and a coloured preview "
+                  "focus), its confidence in [0, 1] beside it (<name>_confidence.tif), the second fit of a "
+                  "periodic texture where there is one (<name>_alternative.tif) and a coloured preview "
                   "with a colour bar (<name>.png). --disparity FILE of refocus, detect and reduce reuses it.")
     _add_input(sub)
     _add_output(sub, "disparity: .tif or .tiff (float32, the settings in its metadata)")

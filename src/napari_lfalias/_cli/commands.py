@@ -15,7 +15,7 @@ from .. import io_write
 from .._inputs import check_reduce_options, open_input, resolved_options, view_grid
 from .._validate import finite_float
 from ..errors import ParameterError
-from .depth import confidence_of, estimate, read_disparity
+from .depth import alternative_of, confidence_of, estimate, read_disparity
 from .outputs import check_outputs, image_suffix, preview_range, sibling, write_outputs
 from .progress import Stages, StepProgress
 
@@ -58,7 +58,7 @@ def given_inputs(args):
     """The files and folders the user gave a command (never written to)."""
     grid_file = args.grid if args.grid is not None and view_grid(args.grid) is None else None
     disparity = getattr(args, "disparity", None)
-    extra = [disparity, confidence_of(disparity)] if disparity is not None else []
+    extra = [disparity, confidence_of(disparity), alternative_of(disparity)] if disparity is not None else []
     return [args.input, args.white, args.dark, grid_file, *extra]
 
 

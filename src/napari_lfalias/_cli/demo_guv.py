@@ -31,7 +31,7 @@ GUV_FILES = {
 GUV_OUTPUTS = (
     "guv_overview.png", "guv_lightfield.tif", "guv_centre_view.png", "guv_refocus.png", "guv_refocus.tif",
     "guv_score.png", "guv_score.tif", "guv_mask.png", "guv_reduced.png", "guv_reduced.tif", "guv_levels.tif",
-    "guv_disparity.tif", "guv_disparity_confidence.tif", "guv_disparity.png",
+    "guv_disparity.tif", "guv_disparity_confidence.tif", "guv_disparity_alternative.tif", "guv_disparity.png",
 )
 #: Slopes tried when no --slope is given (the demo shows the most aliased one).
 N_CANDIDATES = 9
@@ -180,7 +180,8 @@ def _write(paths, lf, est, image, detection, result, metadata, zoom, overwrite):
          (paths["guv_mask.png"], "mask", detection.mask), (paths["guv_levels.tif"], "levels", result.level)],
         metadata, overwrite, image_range, zoom=zoom,
     )
-    write_disparity([paths["guv_disparity.tif"], paths["guv_disparity_confidence.tif"], paths["guv_disparity.png"]],
+    write_disparity([paths["guv_disparity.tif"], paths["guv_disparity_confidence.tif"],
+                     paths["guv_disparity_alternative.tif"], paths["guv_disparity.png"]],
                     est, {"scene": metadata["scene"]}, overwrite)
     low, high = float(est.disparity.min()), float(est.disparity.max())
     score_title = "aliasing score" if metadata["method"] == "depth" else "Cv"

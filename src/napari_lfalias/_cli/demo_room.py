@@ -34,7 +34,7 @@ ERROR_RANGE = 0.1
 ROOM_FILES = (
     "overview.png", "room_naive.png", "room_naive.tif", "room_reduced.png", "room_reduced.tif", "room_paper.png",
     "room_paper.tif", "room_reference.png", "room_reference.tif", "room_mask.png", "room_disparity.tif",
-    "room_disparity_confidence.tif", "room_disparity.png",
+    "room_disparity_confidence.tif", "room_disparity_alternative.tif", "room_disparity.png",
 )
 REGIONS = ("image", "aliased", "clean")
 
@@ -158,7 +158,7 @@ def _write(paths, images, reference, est, mask, truth, table, user_given, overwr
              for name, image in {**images, "reference": reference}.items() for suffix in ("png", "tif")]
     write_outputs(items + [(paths["room_mask.png"], "mask", mask)], metadata, overwrite)
     write_disparity([paths["room_disparity.tif"], paths["room_disparity_confidence.tif"],
-                     paths["room_disparity.png"]], est, metadata, overwrite)
+                     paths["room_disparity_alternative.tif"], paths["room_disparity.png"]], est, metadata, overwrite)
 
     def title(name, key):
         return f"{name} {table[key]['image']:.1f} dB"

@@ -1,13 +1,15 @@
 """The ``depth`` subcommand, and the disparity maps it writes read back (``--disparity FILE``).
 
-``lfalias depth INPUT -o depth.tif`` writes three files: ``depth.tif`` (the
+``lfalias depth INPUT -o depth.tif`` writes four files: ``depth.tif`` (the
 disparity, float32, pixels per view step, with the settings in its TIFF
-metadata), ``depth_confidence.tif`` beside it (float32 in [0, 1]) and
-``depth.png`` (a coloured preview with a colour bar of the range). Given
-back with ``--disparity depth.tif``, the map and its confidence make the
-same :class:`~napari_lfalias.disparity.DisparityEstimate` as the run that
-wrote them; a disparity TIFF from elsewhere (no confidence beside it) is
-trusted everywhere (confidence 1).
+metadata), ``depth_confidence.tif`` beside it (float32 in [0, 1]),
+``depth_alternative.tif`` (the second fit of a periodic texture where there
+is one, the disparity itself elsewhere) and ``depth.png`` (a coloured preview
+with a colour bar of the range). Given back with ``--disparity depth.tif``,
+the maps beside it make the same
+:class:`~napari_lfalias.disparity.DisparityEstimate` as the run that wrote
+them; a disparity TIFF from elsewhere (no confidence beside it) is trusted
+everywhere (confidence 1).
 """
 
 from __future__ import annotations
@@ -25,12 +27,14 @@ from .outputs import check_outputs, preview_zoom, sibling
 from .progress import Stages, StepProgress
 
 __all__ = ["run_depth", "depth_outputs", "check_range", "estimate", "DisparityFile", "read_disparity",
-           "confidence_of", "write_disparity", "LABEL"]
+           "confidence_of", "alternative_of", "write_disparity", "LABEL"]
 
 #: The colour bar's caption.
 LABEL = "px per view step"
 #: The confidence file's tag: ``depth.tif`` -> ``depth_confidence.tif``.
 CONFIDENCE = "confidence"
+#: The alternative's tag: ``depth.tif`` -> ``depth_alternative.tif``.
+ALTERNATIVE = "alternative"
 
 
 def confidence_of(path):
@@ -38,19 +42,25 @@ def confidence_of(path):
     return sibling(path, CONFIDENCE)
 
 
+def alternative_of(path):
+    """The alternative file beside a disparity TIFF: ``depth.tif`` -> ``depth_alternative.tif``."""
+    return sibling(path, ALTERNATIVE)
+
+
 def depth_outputs(out):
-    """``depth.tif`` -> ``[depth.tif, depth_confidence.tif, depth.png]``; only .tif/.tiff is accepted.
+    """``depth.tif`` -> ``[depth.tif, depth_confidence.tif, depth_alternative.tif, depth.png]``; only .tif/.tiff
+    is accepted.
 
     Examples
     --------
     >>> [p.name for p in depth_outputs("out/d.tif")]
-    ['d.tif', 'd_confidence.tif', 'd.png']
+    ['d.tif', 'd_confidence.tif', 'd_alternative.tif', 'd.png']
     """
     out = Path(out)
     if out.suffix.lower() not in (".tif", ".tiff"):
         raise ParameterError(f"{out}: --out must end in .tif or .tiff (the float disparity; its PNG preview "
                              f"is written beside it as {out.stem}.png)")
-    return [out, confidence_of(out), out.with_suffix(".png")]
+    return [out, confidence_of(out), alternative_of(out), out.with_suffix(".png")]
 
 
 def check_range(values):
@@ -90,8 +100,9 @@ def _summary(est):
 
 
 def write_disparity(paths, est, metadata, overwrite):
-    """Write the disparity TIFF, its confidence and the coloured PNG (``paths`` from :func:`depth_outputs`)."""
-    tif, confidence, png = paths
+    """Write the disparity TIFF, its confidence, its alternative and the coloured PNG (``paths`` from
+    :func:`depth_outputs`)."""
+    tif, confidence, alternative, png = paths
     settings = {**metadata, "disparity_range": list(est.disparity_range), "radius": est.params.get("radius"),
                 "units": "pixels per unit of view position", "confidence_file": Path(confidence).name}
     low, high = float(est.disparity.min()), float(est.disparity.max())
@@ -99,9 +110,17 @@ def write_disparity(paths, est, metadata, overwrite):
         io_write.write_tiff(tif, est.disparity.astype(np.float32), {**settings, "content": "disparity"}, overwrite),
         io_write.write_tiff(confidence, est.confidence.astype(np.float32), {**settings, "content": "confidence"},
                             overwrite),
+        io_write.write_tiff(alternative, _alternative_or_disparity(est), {**settings, "content": "alternative"},
+                            overwrite),
         io_write.write_png(png, colour_preview(est.disparity, low, high, LABEL, preview_zoom(est.disparity.shape)),
                            overwrite),
     ]
+
+
+def _alternative_or_disparity(est):
+    """The estimate's alternative where it has one, its disparity elsewhere (a finite map, float32)."""
+    alternative = est.alternative if est.alternative is not None else est.disparity
+    return np.where(np.isfinite(alternative), alternative, est.disparity).astype(np.float32)
 
 
 def run_depth(args, stream):
@@ -136,6 +155,7 @@ class DisparityFile:
     disparity: np.ndarray
     confidence: np.ndarray | None
     metadata: dict
+    alternative: np.ndarray | None = None
 
     def for_views(self, shape):
         """The map for light fields of views ``shape`` (Y, X): a DisparityEstimate, or the bare map.
@@ -156,7 +176,10 @@ class DisparityFile:
         searched = self.metadata.get("disparity_range")
         searched = tuple(float(v) for v in searched) if searched else (float(self.disparity.min()),
                                                                          float(self.disparity.max()))
-        return DisparityEstimate(self.disparity, self.confidence, searched, {"file": str(self.path)})
+        alternative = None
+        if self.alternative is not None:
+            alternative = np.where(self.alternative != self.disparity, self.alternative, np.nan).astype(np.float32)
+        return DisparityEstimate(self.disparity, self.confidence, searched, {"file": str(self.path)}, alternative)
 
 
 def _read_map(path, what):
@@ -189,7 +212,8 @@ def _read_map(path, what):
 
 
 def read_disparity(path):
-    """Read a disparity TIFF (``lfalias depth``), and its confidence if ``<name>_confidence.tif`` lies beside it.
+    """Read a disparity TIFF (``lfalias depth``), and its confidence and alternative if ``<name>_confidence.tif``
+    and ``<name>_alternative.tif`` lie beside it.
 
     Everything but the shape (which needs the light field) is checked here,
     before any input is decoded.
@@ -217,4 +241,11 @@ def read_disparity(path):
         if confidence.min() < 0 or confidence.max() > 1:
             raise ParameterError(f"{confidence_path}: a confidence must lie in [0, 1], got "
                                  f"{confidence.min():.3g} .. {confidence.max():.3g}")
-    return DisparityFile(path, disparity, confidence, metadata)
+    alternative_path = alternative_of(path)
+    alternative = None
+    if confidence is not None and alternative_path.is_file():
+        alternative, _ = _read_map(alternative_path, "alternative map")
+        if alternative.shape != disparity.shape:
+            raise ParameterError(f"{alternative_path}: its shape {alternative.shape} is not the disparity's "
+                                 f"{disparity.shape} ({path.name}); write both again with `lfalias depth`")
+    return DisparityFile(path, disparity, confidence, metadata, alternative)

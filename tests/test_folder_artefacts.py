@@ -118,11 +118,18 @@ def test_a_vignetted_folder_neither_darkens_the_refocus_nor_raises_cv(vignetted)
 
 
 def test_the_default_detector_is_not_raised_by_vignetting(vignetted):
+    """With the weights, the default detector flags what it flags on the ideal views and its disparity
+    estimate is as sure; read without them, the vignette spoils the estimate (median confidence 0.04
+    against 0.81), whose renderings are then not trusted to flag anything (before stop 21, with renderings
+    trusted from a confidence of 0.05, that was where the vignette raised it)."""
     folder, target = vignetted
-    flagged = {name: float(lfa.detect_aliasing(x, SLOPE).mask.mean())
-               for name, x in (("ideal", target), ("weights", lfa.load(folder)),
-                               ("files", lfa.load(folder, artefacts=False)))}
-    assert flagged["weights"] <= flagged["ideal"] + 0.005 and flagged["files"] > flagged["weights"], flagged
+    flagged, sure = {}, {}
+    for name, x in (("ideal", target), ("weights", lfa.load(folder)), ("files", lfa.load(folder, artefacts=False))):
+        detector = lfa.AliasingDetector(x)
+        flagged[name] = float(detector.detect(SLOPE).mask.mean())
+        sure[name] = float(np.median(detector.guide.estimate[1]))
+    assert flagged["weights"] <= flagged["ideal"] + 0.005, flagged
+    assert sure["weights"] >= sure["ideal"] - 0.05 and sure["files"] < sure["ideal"] / 2, sure
 
 
 def test_grey_16_bit_views_are_corrected_too(tmp_path):

@@ -93,7 +93,10 @@ def test_antleg_grid_and_views(antleg):
 def test_the_dense_antleg_capture_has_nothing_for_the_default_reduction_to_remove(antleg):
     """All 27x27 views of a real microscope capture sample the aperture densely: its sensor noise, the dark
     corner views and the sensor's dark strip are not aliasing. Its 3x3 sub-grid (one view per 9x9 cell of
-    the aperture) does alias where the leg is out of focus: ghosts 9 view steps apart."""
+    the aperture) does alias where the leg is out of focus (ghosts 9 view steps apart), and the default
+    reduction brings it nearer the refocus of all 729 views (the sub-grid protocol), clean pixels included.
+    Measured at slope 1.5: +1.0 dB overall, +0.9 on the clean pixels; with renderings trusted from a
+    confidence of 0.05 (before stop 21) +11.7 overall but -2.8 on the clean pixels."""
     _, lf = antleg
     estimate = lfa.estimate_disparity(lf)
     for slope in (0.0, 0.5):
@@ -102,4 +105,10 @@ def test_the_dense_antleg_capture_has_nothing_for_the_default_reduction_to_remov
         np.testing.assert_array_equal(reduced.image, reduced.refocused)
     sparse = lf.subset([4, 13, 22], [4, 13, 22])
     sparse = lfa.LightField(sparse.data, sparse.positions, weights=sparse.weights)
-    assert lfa.reduce_aliasing(sparse, 1.5).detections[0].mask.mean() > 0.3  # measured: 0.79
+    naive, reference = lfa.refocus(sparse, 1.5), lfa.refocus(lf, 1.5)
+    reduced = lfa.reduce_aliasing(sparse, 1.5)
+    assert reduced.detections[0].mask.mean() > 0.05  # measured: 0.14
+    clean = ~lfa.metrics.aliased_pixels(naive, reference)
+    gains = [lfa.metrics.psnr(reduced.image, reference, mask=m) - lfa.metrics.psnr(naive, reference, mask=m)
+             for m in (None, clean)]
+    assert gains[0] > 0.5 and gains[1] >= -0.1, gains

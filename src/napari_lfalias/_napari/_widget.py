@@ -720,7 +720,8 @@ class AliasingWidget(QWidget):
         self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
         self._show_mask_source(params.method, slope)
         self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels take what a dense "
-                         "aperture records (the flagged ones, magenta, and those next to them above T/2); the "
+                         "aperture records (the flagged ones, magenta, and those next to them above T/2 where the "
+                         "rendering does not hinge on its depth edges); the "
                          "whole anti-aliased rendering goes to a hidden layer")
 
     def _show_disparity(self, estimate):

@@ -15,7 +15,7 @@ import napari_lfalias as lfa
 from napari_lfalias import metrics
 from napari_lfalias.disparity import DisparityEstimate
 from napari_lfalias.errors import LightFieldError, ParameterError
-from napari_lfalias.render import SlopeRenderer, render_dense_aperture
+from napari_lfalias.render import SlopeRenderer, _in_focus_colour, render_dense_aperture
 from napari_lfalias.synthetic import brick_room, layered_scene
 from napari_lfalias.synthetic.camera import capture
 
@@ -260,6 +260,11 @@ def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole
     layers = renderer.layers(moved, bins_of=main)
     differs = layers.differs_from(main)
     assert 0.0 < differs.mean() < 0.5
+    # made where the views' bins differ from main's only, the fill is that of every pixel made
+    fill, has_fill = _in_focus_colour(renderer.stack, layers.view_bins, layers.bins[2], layers.order, layers.occluders)
+    np.testing.assert_array_equal(layers.fill, fill)
+    np.testing.assert_array_equal(layers.has_fill, has_fill)
+    assert not np.array_equal(layers.fill, main.fill)
     whole = renderer.composite(layers)
     part = renderer.composite(layers, within=differs, elsewhere=rendering)
     for name in ("image", "blurred_share", "trust"):

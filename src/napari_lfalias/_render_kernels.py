@@ -10,7 +10,8 @@
   done only here and there (the depth edges moved): only the rows of each
   view that a changed pixel lands in are warped again.
 - ``views_differ``: where two such sets of views' bins differ.
-- ``in_focus_colour``: the colour of the in-focus background the views
+- ``in_focus_colour`` (``in_focus_colour_near``: for bins that another
+  set's are but here and there): the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
   disparity bins; each bin (premultiplied colour, coverage, confidence)
@@ -26,7 +27,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "view_bins_near", "views_differ", "in_focus_colour", "composite_views"]
+__all__ = ["view_bins", "view_bins_near", "views_differ", "in_focus_colour", "in_focus_colour_near", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -380,34 +381,65 @@ def views_differ(bins, other_bins, confidence, other_confidence, out):
                     out[y, x] = True
 
 
+@njit(cache=True, inline="always")
+def _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill, out_has_fill):
+    """:func:`in_focus_colour` at one pixel (``colour (C,)`` float32 scratch)."""
+    n, n_ch = bins.shape[0], values.shape[3]
+    colour[:] = 0.0
+    total = np.float32(0.0)
+    every = np.float32(0.0)
+    for i in range(n):
+        w = weights[i, y, x]
+        every += w
+        k = bins[i, y, x]
+        if k < 0 or not shows[k] or not w > 0.0:
+            continue
+        total += w
+        for c in range(n_ch):
+            colour[c] += w * values[i, y, x, c]
+    has = total >= share * max(every, least)
+    out_has_fill[y, x] = has
+    for c in range(n_ch):
+        out_fill[y, x, c] = colour[c] / total if has else colour[c]
+
+
 @njit(cache=True, parallel=True)
 def in_focus_colour(values, weights, bins, shows, fill_share, out_fill, out_has_fill):
     """The weighted mean colour ``(Y, X, C)`` of the samples whose bin ``shows`` an in-focus background,
     and ``(Y, X)`` whether they hold at least ``fill_share`` of the pixel's whole sample weight (the
     colour is the plain weighted sum elsewhere). Sums run over the views in order, in float32."""
-    n, n_rows, n_cols = bins.shape
-    n_ch = values.shape[3]
+    n_rows, n_cols = bins.shape[1], bins.shape[2]
     share = np.float32(fill_share)
     least = np.float32(1e-6)
     for y in prange(n_rows):
-        colour = np.zeros(n_ch, np.float32)
+        colour = np.zeros(values.shape[3], np.float32)
         for x in range(n_cols):
-            colour[:] = 0.0
-            total = np.float32(0.0)
-            every = np.float32(0.0)
+            _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill, out_has_fill)
+
+
+@njit(cache=True, parallel=True)
+def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, other_fill, other_has_fill, out_fill,
+                         out_has_fill):
+    """:func:`in_focus_colour` for views' bins that are another's, ``other_bins`` (whose outputs are
+    ``other_fill``, ``other_has_fill``), but here and there: made where any view's bin differs, the
+    other's elsewhere (the same result)."""
+    n, n_rows, n_cols = bins.shape
+    share = np.float32(fill_share)
+    least = np.float32(1e-6)
+    for y in prange(n_rows):
+        colour = np.zeros(values.shape[3], np.float32)
+        for x in range(n_cols):
+            same = True
             for i in range(n):
-                w = weights[i, y, x]
-                every += w
-                k = bins[i, y, x]
-                if k < 0 or not shows[k] or not w > 0.0:
-                    continue
-                total += w
-                for c in range(n_ch):
-                    colour[c] += w * values[i, y, x, c]
-            has = total >= share * max(every, least)
-            out_has_fill[y, x] = has
-            for c in range(n_ch):
-                out_fill[y, x, c] = colour[c] / total if has else colour[c]
+                if bins[i, y, x] != other_bins[i, y, x]:
+                    same = False
+                    break
+            if same:
+                out_has_fill[y, x] = other_has_fill[y, x]
+                out_fill[y, x] = other_fill[y, x]
+            else:
+                _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill,
+                                    out_has_fill)
 
 
 @njit(cache=True)

@@ -126,7 +126,7 @@ def _bins(disparity, slope, spacing, max_bins):
     return edges, centres, taps
 
 
-def _in_focus_colour(stack, bins, taps, order, occluders):
+def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     """The colour of the in-focus background at each pixel, from the views whose sample shows it.
 
     Only in-focus surfaces behind a clearly nearer one count (what an
@@ -136,6 +136,9 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     at least :data:`FILL_SHARE` of the views (by weight) show one: not a
     stray sample.
 
+    ``near``: :class:`Layers` in the same bins, order and occluders whose
+    fill is taken where every view's bin is theirs.
+
     Returns ``(fill (Y, X, C) float32, has_fill (Y, X) bool)``.
     """
     sharp = ~np.any(taps != 0, axis=1)
@@ -144,7 +147,11 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     shape = bins.shape[1:]
     fill = np.empty(shape + (stack.values.shape[-1],), np.float32)
     has_fill = np.empty(shape, bool)
-    _run("in_focus_colour", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, fill, has_fill)
+    if near is None:
+        _run("in_focus_colour", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, fill, has_fill)
+    else:
+        _run("in_focus_colour_near", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, near.view_bins,
+             near.fill, near.has_fill, fill, has_fill)
     return fill, has_fill
 
 
@@ -296,7 +303,7 @@ class SlopeRenderer:
                  empty_rows)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)
+        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, warped, confidence,
                       empty_rows, bool(larger_first))
 

@@ -260,11 +260,6 @@ def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole
     layers = renderer.layers(moved, bins_of=main)
     differs = layers.differs_from(main)
     assert 0.0 < differs.mean() < 0.5
-    # made where the views' bins differ from main's only, the fill is that of every pixel made
-    fill, has_fill = _in_focus_colour(renderer.stack, layers.view_bins, layers.bins[2], layers.order, layers.occluders)
-    np.testing.assert_array_equal(layers.fill, fill)
-    np.testing.assert_array_equal(layers.has_fill, has_fill)
-    assert not np.array_equal(layers.fill, main.fill)
     whole = renderer.composite(layers)
     part = renderer.composite(layers, within=differs, elsewhere=rendering)
     for name in ("image", "blurred_share", "trust"):
@@ -314,6 +309,17 @@ def test_warping_only_the_rows_where_two_maps_differ_gives_what_warping_every_ro
     theirs, _ = _view_bins_both_ways(other, other_confidence, other, other_confidence, positions, larger_first, -2.0,
                                      edges)
     assert not np.array_equal(whole[0], theirs[0]) or not np.array_equal(whole[1], theirs[1])
+
+
+def test_the_fill_of_layers_in_anothers_bins_is_made_where_their_bins_differ_and_is_that_of_every_pixel():
+    scene = brick_room(n_views=5, size=96, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, -4.0)  # the back wall in focus, behind the cube: it fills
+    main = renderer.layers(scene.disparity)
+    layers = renderer.layers(ndimage.grey_dilation(scene.disparity, size=(5, 5)), bins_of=main)
+    fill, has_fill = _in_focus_colour(renderer.stack, layers.view_bins, layers.bins[2], layers.order, layers.occluders)
+    np.testing.assert_array_equal(layers.fill, fill)
+    np.testing.assert_array_equal(layers.has_fill, has_fill)
+    assert main.has_fill.any() and not np.array_equal(layers.fill, main.fill)
 
 
 def test_layers_compare_only_in_the_same_bins():

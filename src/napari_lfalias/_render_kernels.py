@@ -313,6 +313,25 @@ def _landing_rows(rows, ours, theirs, q_y, out):
                     out[yy] = True
 
 
+@njit(cache=True)
+def _warp_scratch(disparity):
+    """A view's warped disparity, confidence and bins, and which pixels were filled: ``(Y, X)`` each."""
+    n_rows, n_cols = disparity.shape
+    return (np.empty((n_rows, n_cols), disparity.dtype), np.empty((n_rows, n_cols), np.float32),
+            np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_))
+
+
+@njit(cache=True)
+def _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
+                     out_bins, out_confidence, out_empty):
+    """One view of :func:`view_bins`: every row warped (:func:`_warp_view`), then sampled at the shift."""
+    warped, warped_confidence, warped_bins, filled = scratch
+    _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
+               filled, d_min, d_max, out_empty)
+    _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, np.ones(disparity.shape[0], np.bool_),
+                       out_bins, out_confidence, out_bins, out_confidence)
+
+
 @njit(cache=True, parallel=True)
 def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence, out_empty):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
@@ -320,20 +339,11 @@ def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_
     forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
     shift (:func:`_shifted_bins_view`); views in parallel. ``out_empty (n, Y)``: the rows of each view
     nothing landed in (what :func:`view_bins_near` needs)."""
-    n = positions.shape[0]
-    n_rows, n_cols = disparity.shape
     source_bins = _source_bins(disparity, edges)
     d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
-    every = np.ones(n_rows, np.bool_)
-    for i in prange(n):
-        warped = np.empty((n_rows, n_cols), disparity.dtype)
-        warped_confidence = np.empty((n_rows, n_cols), np.float32)
-        warped_bins = np.empty((n_rows, n_cols), np.int16)
-        filled = np.empty((n_rows, n_cols), np.bool_)
-        _warp_view(disparity, confidence, source_bins, positions[i, 0], positions[i, 1], larger_first, warped,
-                   warped_confidence, warped_bins, filled, d_min, d_max, out_empty[i])
-        _shifted_bins_view(warped_bins, warped_confidence, slope * positions[i, 0], slope * positions[i, 1], every,
-                           out_bins[i], out_confidence[i], out_bins[i], out_confidence[i])
+    for i in prange(positions.shape[0]):
+        _whole_view_bins(disparity, confidence, source_bins, positions[i, 0], positions[i, 1], larger_first, slope,
+                         d_min, d_max, _warp_scratch(disparity), out_bins[i], out_confidence[i], out_empty[i])
 
 
 @njit(cache=True, parallel=True)
@@ -344,17 +354,13 @@ def view_bins_near(disparity, confidence, other_disparity, other_confidence, oth
     ``other_view_confidence``, ``other_empty``): in each view, only the rows that a pixel where the
     maps differ lands in are warped (:func:`_landing_rows`, :func:`_warp_view_near`); the other rows are
     the other map's. The same result as :func:`view_bins`, bit for bit."""
-    n = positions.shape[0]
-    n_rows, n_cols = disparity.shape
+    n_rows = disparity.shape[0]
     source_bins = _source_bins(disparity, edges)
     d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
     changed_rows, ours, theirs = _changed(disparity, confidence, other_disparity, other_confidence)
-    every = np.ones(n_rows, np.bool_)
-    for i in prange(n):
-        warped = np.empty((n_rows, n_cols), disparity.dtype)
-        warped_confidence = np.empty((n_rows, n_cols), np.float32)
-        warped_bins = np.empty((n_rows, n_cols), np.int16)
-        filled = np.empty((n_rows, n_cols), np.bool_)
+    for i in prange(positions.shape[0]):
+        scratch = _warp_scratch(disparity)
+        warped, warped_confidence, warped_bins, filled = scratch
         q_y, q_x = positions[i, 0], positions[i, 1]
         rows = np.empty(n_rows, np.bool_)
         _landing_rows(changed_rows, ours, theirs, q_y, rows)
@@ -363,10 +369,8 @@ def view_bins_near(disparity, confidence, other_disparity, other_confidence, oth
             _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, rows, other_bins[i],
                                other_view_confidence[i], out_bins[i], out_confidence[i])
         else:
-            _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence,
-                       warped_bins, filled, d_min, d_max, out_empty[i])
-            _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, every, out_bins[i],
-                               out_confidence[i], out_bins[i], out_confidence[i])
+            _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
+                             out_bins[i], out_confidence[i], out_empty[i])
 
 
 @njit(cache=True, parallel=True)

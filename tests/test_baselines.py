@@ -172,3 +172,31 @@ def test_depth_aware_rejects_bad_parameters(kwargs, name):
     args.update(kwargs)
     with pytest.raises(ParameterError, match=name):
         depth_aware_refocus(args.pop("lf"), args.pop("slope"), args.pop("disparity"), **args)
+
+
+def _box_pass_x_column_by_column(src, n, f):
+    """The box along the rows, one column at a time: float64 prefix sums, each end tap added to the float32 sum."""
+    out = np.empty_like(src)
+    n_cols = src.shape[1]
+    for y in range(src.shape[0]):
+        prefix = np.zeros((n_cols + 1, src.shape[2]))
+        prefix[1:] = np.cumsum(src[y].astype(np.float64), axis=0)
+        for x in range(n_cols):
+            value = (prefix[min(x + n + 1, n_cols)] - prefix[max(x - n, 0)]).astype(np.float32)
+            if f > 0.0 and x - n - 1 >= 0:
+                value = (value + f * src[y, x - n - 1].astype(np.float64)).astype(np.float32)
+            if f > 0.0 and x + n + 1 < n_cols:
+                value = (value + f * src[y, x + n + 1].astype(np.float64)).astype(np.float32)
+            out[y, x] = value
+    return out
+
+
+@pytest.mark.parametrize("n, f", [(0, 0.0), (0, 0.4), (2, 0.0), (3, 0.25), (10, 0.7), (18, 0.5), (19, 0.1), (40, 0.3)])
+def test_the_box_along_the_rows_is_the_sum_column_by_column_bit_for_bit(n, f):
+    # the kernel sums the columns whose box lies inside the row in one flat loop: the same float roundings
+    from napari_lfalias._baseline_kernels import _box_pass_x
+
+    src = np.random.default_rng(n).random((3, 37, 5)).astype(np.float32) * 7.0
+    out = np.empty_like(src)
+    _box_pass_x(src, out, n, f)
+    np.testing.assert_array_equal(out, _box_pass_x_column_by_column(src, n, f))

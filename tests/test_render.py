@@ -15,7 +15,7 @@ import napari_lfalias as lfa
 from napari_lfalias import metrics
 from napari_lfalias.disparity import DisparityEstimate
 from napari_lfalias.errors import LightFieldError, ParameterError
-from napari_lfalias.render import SlopeRenderer, render_dense_aperture
+from napari_lfalias.render import SlopeRenderer, _in_focus_colour, render_dense_aperture
 from napari_lfalias.synthetic import brick_room, layered_scene
 from napari_lfalias.synthetic.camera import capture
 
@@ -268,6 +268,60 @@ def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole
     assert np.abs(whole.image - rendering.image).max() > 0.05
 
 
+def _view_bins_both_ways(disparity, confidence, other, other_confidence, positions, larger_first, slope, edges):
+    """The kernels' outputs for ``disparity``: warped whole, and warped near ``other``'s."""
+    from napari_lfalias._render_kernels import view_bins, view_bins_near
+
+    def outputs():
+        n, shape = len(positions), disparity.shape
+        return np.empty((n,) + shape, np.int16), np.empty((n,) + shape, np.float32), np.empty((n, shape[0]), bool)
+
+    theirs, whole, near = outputs(), outputs(), outputs()
+    view_bins(other, other_confidence, positions, larger_first, slope, edges, *theirs)
+    view_bins(disparity, confidence, positions, larger_first, slope, edges, *whole)
+    view_bins_near(disparity, confidence, other, other_confidence, *theirs, positions, larger_first, slope, edges,
+                   *near)
+    return whole, near
+
+
+@pytest.mark.parametrize("larger_first", [True, False])
+@pytest.mark.parametrize("case", ["moved edges", "rows emptied", "confidence"])
+def test_warping_only_the_rows_where_two_maps_differ_gives_what_warping_every_row_gives(case, larger_first):
+    scene = brick_room(n_views=5, size=64, seed=0)
+    positions = np.ascontiguousarray(scene.lightfield.flat_positions(), np.float64) * 2.0  # rows left empty
+    disparity = scene.disparity.astype(np.float32)
+    confidence = np.ones(disparity.shape, np.float32)
+    other, other_confidence = disparity.copy(), confidence.copy()
+    if case == "moved edges":
+        other = ndimage.grey_dilation(disparity, size=(5, 5)).astype(np.float32)
+    elif case == "rows emptied":  # a stretch of larger disparities: rows in between get nothing, and fill
+        disparity[20:40] = np.linspace(0.0, 12.0, 20, dtype=np.float32)[:, None]
+        disparity[30:32, 10:30] = -3.0
+    else:
+        confidence[10:20, 5:50] = 0.5
+    edges = np.linspace(float(disparity.min()), float(disparity.max()), 9)
+    edges[0], edges[-1] = -np.inf, np.inf
+    whole, near = _view_bins_both_ways(disparity, confidence, other, other_confidence, positions, larger_first, -2.0,
+                                       edges)
+    for a, b in zip(whole, near):
+        np.testing.assert_array_equal(a, b)
+    assert whole[2].any()  # some rows were filled along the columns
+    theirs, _ = _view_bins_both_ways(other, other_confidence, other, other_confidence, positions, larger_first, -2.0,
+                                     edges)
+    assert not np.array_equal(whole[0], theirs[0]) or not np.array_equal(whole[1], theirs[1])
+
+
+def test_the_fill_of_layers_in_anothers_bins_is_made_where_their_bins_differ_and_is_that_of_every_pixel():
+    scene = brick_room(n_views=5, size=96, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, -4.0)  # the back wall in focus, behind the cube: it fills
+    main = renderer.layers(scene.disparity)
+    layers = renderer.layers(ndimage.grey_dilation(scene.disparity, size=(5, 5)), bins_of=main)
+    fill, has_fill = _in_focus_colour(renderer.stack, layers.view_bins, layers.bins[2], layers.order, layers.occluders)
+    np.testing.assert_array_equal(layers.fill, fill)
+    np.testing.assert_array_equal(layers.has_fill, has_fill)
+    assert main.has_fill.any() and not np.array_equal(layers.fill, main.fill)
+
+
 def test_layers_compare_only_in_the_same_bins():
     scene = brick_room(n_views=4, size=32, seed=0)
     renderer = SlopeRenderer(scene.lightfield, 4.0)
@@ -294,6 +348,6 @@ def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
     # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
     view_bins(disparity, np.ones(disparity.shape, np.float32), np.zeros((1, 2)), False, 0.0, edges, bins,
-              confidence)
+              confidence, np.empty((1, 1), bool))
     expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
     np.testing.assert_array_equal(bins[0, 0], expected)

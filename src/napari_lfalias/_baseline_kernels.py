@@ -26,29 +26,57 @@ __all__ = ["box_image", "box_image_into", "window_means", "box_views", "view_spr
 
 @njit(cache=True, inline="always")
 def _box_pass_x(src, out, n, f):
-    """Sum of the box ``(n, f)`` along axis 1 of ``src (Y, X, K)``, zero outside.
+    """Sum of the box ``(n, f)`` along axis 1 of ``src (Y, X, K)`` (C-contiguous), zero outside.
 
     The box has ``2n + 1`` full taps and an end tap of weight ``f`` on each
-    side; each row goes through prefix sums (float64).
+    side; each row goes through prefix sums (float64). The columns whose
+    box and end taps lie inside the row are summed in one flat loop over
+    views that start where each tap reads (indices that cannot be negative:
+    the loop vectorises), the others column by column; each sum is rounded
+    to float32 where the one end tap, then the other, is added, as one
+    column at a time would.
     """
     n_rows, n_cols, n_k = src.shape
+    size = n_cols * n_k
     prefix = np.zeros((n_cols + 1, n_k))
+    flat_prefix = prefix.reshape((n_cols + 1) * n_k)
+    tap = (n + 1) * n_k  # from a column to its end taps
+    lo = min(n + 1, n_cols)  # the columns [lo, hi) have both end taps inside the row
+    hi = max(lo, n_cols - n - 1)
+    a, b = lo * n_k, hi * n_k
+    inner = b - a
+    box_high = flat_prefix[a + tap:b + tap]
+    box_low = flat_prefix[a - n * n_k:b - n * n_k] if inner > 0 else flat_prefix[:0]
     for y in range(n_rows):
+        row = src[y]
+        summed = out[y]
         for x in range(n_cols):
             for k in range(n_k):
-                prefix[x + 1, k] = prefix[x, k] + src[y, x, k]
+                prefix[x + 1, k] = prefix[x, k] + row[x, k]
+        if inner > 0:
+            flat_row = row.reshape(size)
+            middle = summed.reshape(size)[a:b]
+            if f > 0.0:
+                left, right = flat_row[a - tap:b - tap], flat_row[a + tap:b + tap]
+                for j in range(inner):
+                    value = np.float32(box_high[j] - box_low[j])
+                    value = np.float32(value + f * left[j])
+                    middle[j] = np.float32(value + f * right[j])
+            else:
+                for j in range(inner):
+                    middle[j] = np.float32(box_high[j] - box_low[j])
         for x in range(n_cols):
+            if lo <= x < hi:
+                continue
             low = max(x - n, 0)
             high = min(x + n + 1, n_cols)
             for k in range(n_k):
-                out[y, x, k] = prefix[high, k] - prefix[low, k]
-            if f > 0.0:
-                if x - n - 1 >= 0:
-                    for k in range(n_k):
-                        out[y, x, k] += f * src[y, x - n - 1, k]
-                if x + n + 1 < n_cols:
-                    for k in range(n_k):
-                        out[y, x, k] += f * src[y, x + n + 1, k]
+                value = np.float32(prefix[high, k] - prefix[low, k])
+                if f > 0.0 and x - n - 1 >= 0:
+                    value = np.float32(value + f * row[x - n - 1, k])
+                if f > 0.0 and x + n + 1 < n_cols:
+                    value = np.float32(value + f * row[x + n + 1, k])
+                summed[x, k] = value
 
 
 @njit(cache=True, inline="always")

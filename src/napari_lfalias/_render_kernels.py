@@ -6,8 +6,12 @@
   along the row from the farther side; then, for every view, the
   disparity bin of the surface its sample at ``p + slope * q_i`` shows
   (nearest pixel), and the confidence there; -1 outside the view.
+- ``view_bins_near``: the same for a map that differs from one already
+  done only here and there (the depth edges moved): only the rows of each
+  view that a changed pixel lands in are warped again.
 - ``views_differ``: where two such sets of views' bins differ.
-- ``in_focus_colour``: the colour of the in-focus background the views
+- ``in_focus_colour`` (``in_focus_colour_near``: for bins that another
+  set's are but here and there): the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
 - ``composite_views``: per view, its shifted samples are split into the
   disparity bins; each bin (premultiplied colour, coverage, confidence)
@@ -23,7 +27,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "views_differ", "in_focus_colour", "composite_views"]
+__all__ = ["view_bins", "view_bins_near", "views_differ", "in_focus_colour", "in_focus_colour_near", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -32,52 +36,71 @@ def _nearer(a, b, larger_first):
 
 
 @njit(cache=True)
-def _fill_holes(values, confidence, filled, larger_first):
-    """Fill the unfilled pixels of every row from the nearer filled neighbour that is farther away in depth
-    (a disocclusion shows the background); rows with nothing filled stay as they are. Returns how many
-    pixels stay unfilled.
+def _fill_run(values, confidence, bins, filled, y, x, end, larger_first):
+    """Fill the unfilled run ``[x, end)`` of row ``y`` from the nearer filled neighbour that is farther away in
+    depth (a disocclusion shows the background): that on its left, or on its right where the left one is
+    nearer (or where there is none on the left). Returns how many pixels stay unfilled (the whole run,
+    where it has no neighbour)."""
+    n_cols = values.shape[1]
+    left = x - 1
+    right = end if end < n_cols else -1
+    if left < 0 and right < 0:
+        return end - x
+    pick = left
+    if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
+        pick = right
+    for k in range(x, end):
+        values[y, k] = values[y, pick]
+        confidence[y, k] = confidence[y, pick]
+        bins[y, k] = bins[y, pick]
+        filled[y, k] = True
+    return 0
 
-    A run of unfilled pixels takes one value: that of the filled pixel on its left, or on its right where
-    the left one is nearer (or where there is none on the left).
-    """
-    n_rows, n_cols = values.shape
+
+@njit(cache=True)
+def _fill_row(values, confidence, bins, filled, y, larger_first):
+    """Fill the unfilled runs of row ``y`` (:func:`_fill_run`); a row with nothing filled stays as it is.
+    Returns how many of its pixels stay unfilled."""
+    n_cols = values.shape[1]
     unfilled = 0
-    for y in range(n_rows):
-        x = 0
-        while x < n_cols:
-            if filled[y, x]:
-                x += 1
-                continue
-            end = x + 1  # the run is [x, end)
-            while end < n_cols and not filled[y, end]:
-                end += 1
-            left = x - 1
-            right = end if end < n_cols else -1
-            if left < 0 and right < 0:
-                unfilled += end - x
-                x = end
-                continue
-            pick = left
-            if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
-                pick = right
-            for k in range(x, end):
-                values[y, k] = values[y, pick]
-                confidence[y, k] = confidence[y, pick]
-                filled[y, k] = True
-            x = end
+    x = 0
+    while x < n_cols:
+        if filled[y, x]:
+            x += 1
+            continue
+        end = x + 1  # the run is [x, end)
+        while end < n_cols and not filled[y, end]:
+            end += 1
+        unfilled += _fill_run(values, confidence, bins, filled, y, x, end, larger_first)
+        x = end
     return unfilled
 
 
 @njit(cache=True)
-def _warp_view(disparity, confidence, q_y, q_x, larger_first, out_d, out_c, filled):
-    """Forward-warp ``disparity`` and ``confidence (Y, X)`` into the view at ``(q_y, q_x)`` (``out_d``,
-    ``out_c``); holes are filled along rows, then, where a row had nothing to fill from, along columns
-    (:func:`_fill_holes`); a view nothing lands in stays NaN. ``filled (Y, X)`` is scratch."""
+def _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, out_d, out_c, out_b, filled,
+               d_min, d_max):
+    """Forward-warp ``disparity``, ``confidence`` and the disparity bins ``source_bins (Y, X)`` into the rows
+    ``rows (Y,)`` (bool) of the view at ``(q_y, q_x)`` (``out_d``, ``out_c``, ``out_b``), holes filled
+    along those rows (:func:`_fill_row`); returns how many of their pixels stay unfilled. Each of those
+    rows is what warping every row makes of it: the samples landing in it are written in the same order.
+    ``filled (Y, X)`` is scratch; the other rows are left as they were. ``d_min``, ``d_max``: the least and
+    the largest disparity (the source rows that can land in a wanted row)."""
     n_rows, n_cols = disparity.shape
-    out_d[:] = np.nan
-    out_c[:] = 0.0
-    filled[:] = False
+    low = min(0.0, d_min * q_y, d_max * q_y)
+    high = max(0.0, d_min * q_y, d_max * q_y)
+    wanted = np.zeros(n_rows + 1, np.int64)  # how many of rows[:j] are wanted
     for y in range(n_rows):
+        wanted[y + 1] = wanted[y] + (1 if rows[y] else 0)
+        if rows[y]:
+            out_d[y] = np.nan
+            out_c[y] = 0.0
+            out_b[y] = -1
+            filled[y] = False
+    for y in range(n_rows):
+        first = min(max(int(np.floor(y + low)) - 1, 0), n_rows)
+        last = min(max(int(np.floor(y + high)) + 2, 0), n_rows)
+        if wanted[last] == wanted[first]:
+            continue  # nothing this row holds lands in a wanted row
         for x in range(n_cols):
             d = disparity[y, x]
             ty = y + d * q_y
@@ -87,7 +110,7 @@ def _warp_view(disparity, confidence, q_y, q_x, larger_first, out_d, out_c, fill
             y0 = int(np.floor(ty))
             x0 = int(np.floor(tx))
             for yy in range(y0, y0 + 2):
-                if yy < 0 or yy >= n_rows:
+                if yy < 0 or yy >= n_rows or not rows[yy]:
                     continue
                 for xx in range(x0, x0 + 2):
                     if xx < 0 or xx >= n_cols:
@@ -95,9 +118,90 @@ def _warp_view(disparity, confidence, q_y, q_x, larger_first, out_d, out_c, fill
                     if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
                         out_d[yy, xx] = d
                         out_c[yy, xx] = confidence[y, x]
+                        out_b[yy, xx] = source_bins[y, x]
                         filled[yy, xx] = True
-    if _fill_holes(out_d, out_c, filled, larger_first) > 0:
-        _fill_holes(out_d.T, out_c.T, filled.T, larger_first)
+    unfilled = 0
+    for y in range(n_rows):
+        if rows[y]:
+            unfilled += _fill_row(out_d, out_c, out_b, filled, y, larger_first)
+    return unfilled
+
+
+@njit(cache=True)
+def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled, d_min, d_max,
+               out_empty):
+    """Forward-warp ``disparity``, ``confidence`` and ``source_bins (Y, X)`` into the view at ``(q_y, q_x)``
+    (:func:`_warp_rows` on every row); the rows nothing landed in (``out_empty (Y,)``) are filled along the
+    columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch."""
+    n_rows = disparity.shape[0]
+    _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, np.ones(n_rows, np.bool_), out_d, out_c,
+               out_b, filled, d_min, d_max)
+    for y in range(n_rows):
+        out_empty[y] = not filled[y, 0]  # a row is filled whole, or had nothing to fill from
+    if out_empty.any():
+        for x in range(disparity.shape[1]):
+            _fill_row(out_d.T, out_c.T, out_b.T, filled.T, x, larger_first)
+
+
+@njit(cache=True)
+def _empty_runs(empty):
+    """The runs ``(m, 2)`` ``[start, end)`` of True in ``empty (Y,)``."""
+    n = empty.shape[0]
+    runs = np.empty((n, 2), np.int64)
+    m = 0
+    y = 0
+    while y < n:
+        if not empty[y]:
+            y += 1
+            continue
+        end = y + 1
+        while end < n and empty[end]:
+            end += 1
+        runs[m, 0], runs[m, 1] = y, end
+        m += 1
+        y = end
+    return runs[:m]
+
+
+@njit(cache=True)
+def _warp_view_near(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, other_empty, out_d, out_c,
+                    out_b, filled, d_min, d_max, out_empty):
+    """:func:`_warp_view` of the rows ``rows (Y,)`` of a view, where another map's warp (whose rows nothing
+    landed in were ``other_empty``) is the same in every other row: those rows, and the runs of rows
+    nothing landed in that touch them (filled along the columns from the rows around them), are made as
+    :func:`_warp_view` makes them, and added to ``rows``. Returns False where that needs a row around such
+    a run that is not in ``rows`` (nothing is then made: warp the whole view)."""
+    n_rows, n_cols = disparity.shape
+    for run in _empty_runs(other_empty):  # the rows around the other map's empty runs are read by their fill
+        if run[0] > 0:
+            rows[run[0] - 1] = True
+        if run[1] < n_rows:
+            rows[run[1]] = True
+    _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, out_d, out_c, out_b, filled, d_min,
+               d_max)
+    for y in range(n_rows):
+        out_empty[y] = not filled[y, 0] if rows[y] else other_empty[y]
+    runs = _empty_runs(out_empty)
+    touched = np.zeros(runs.shape[0], np.bool_)
+    for j in range(runs.shape[0]):
+        a, b = runs[j, 0], runs[j, 1]
+        for y in range(max(a - 1, 0), min(b + 1, n_rows)):
+            touched[j] = touched[j] or rows[y]
+        if touched[j] and ((a > 0 and not rows[a - 1]) or (b < n_rows and not rows[b])):
+            return False
+    for j in range(runs.shape[0]):
+        if not touched[j]:
+            continue  # the same rows around it, the same fill: the other map's
+        a, b = runs[j, 0], runs[j, 1]
+        for y in range(a, b):
+            out_d[y] = np.nan
+            out_c[y] = 0.0
+            out_b[y] = -1
+            filled[y] = False
+            rows[y] = True
+        for x in range(n_cols):
+            _fill_run(out_d.T, out_c.T, out_b.T, filled.T, x, a, b, larger_first)
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -121,48 +225,152 @@ def _bin_of(d, edges):
 
 
 @njit(cache=True)
-def _shifted_bins_view(warped, warped_confidence, dy, dx, edges, out_bins, out_confidence):
+def _source_bins(disparity, edges):
+    """The bin (int16) of every pixel of ``disparity (Y, X)``."""
+    n_rows, n_cols = disparity.shape
+    out = np.empty((n_rows, n_cols), np.int16)
+    for y in range(n_rows):
+        for x in range(n_cols):
+            out[y, x] = _bin_of(disparity[y, x], edges)
+    return out
+
+
+@njit(cache=True)
+def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_confidence):
+    """Row ``y`` of a view's sampled bins and confidence: row ``sy`` of the warped ones at ``columns``."""
+    n_cols = warped_bins.shape[1]
+    out_bins[y] = -1
+    out_confidence[y] = 0.0
+    if sy < 0 or sy >= warped_bins.shape[0]:
+        return
+    for x in range(n_cols):
+        sx = columns[x]
+        if sx < 0 or sx >= n_cols:
+            continue
+        b = warped_bins[sy, sx]
+        if b < 0:
+            continue
+        out_bins[y, x] = b
+        out_confidence[y, x] = warped_confidence[sy, sx]
+
+
+@njit(cache=True)
+def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, rows, same_bins, same_confidence, out_bins,
+                       out_confidence):
     """The bin ``(Y, X)`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
-    warped disparity ``warped``; -1 outside the view), and its confidence."""
-    n_rows, n_cols = warped.shape
-    out_bins[:] = -1
-    out_confidence[:] = 0.0
+    warped bins ``warped_bins``; -1 outside the view), and its confidence; the output rows that read a
+    warped row not in ``rows (Y,)`` are copied from ``same_bins``, ``same_confidence``."""
+    n_rows, n_cols = warped_bins.shape
     if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
+        out_bins[:] = -1
+        out_confidence[:] = 0.0
         return
     columns = np.empty(n_cols, np.int64)
     for x in range(n_cols):
         columns[x] = int(np.floor(x + dx + 0.5))
     for y in range(n_rows):
         sy = int(np.floor(y + dy + 0.5))
-        if sy < 0 or sy >= n_rows:
-            continue
+        if 0 <= sy < n_rows and not rows[sy]:
+            out_bins[y] = same_bins[y]
+            out_confidence[y] = same_confidence[y]
+        else:
+            _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_confidence)
+
+
+@njit(cache=True)
+def _changed(disparity, confidence, other_disparity, other_confidence):
+    """The pixels where the two disparity maps (or confidences) differ: their rows ``(m,)`` and their
+    disparities in either map ``(m,)``, ``(m,)``."""
+    n_rows, n_cols = disparity.shape
+    m = 0
+    for y in range(n_rows):
         for x in range(n_cols):
-            sx = columns[x]
-            if sx < 0 or sx >= n_cols:
-                continue
-            d = warped[sy, sx]
-            if d != d:
-                continue
-            out_bins[y, x] = _bin_of(d, edges)
-            out_confidence[y, x] = warped_confidence[sy, sx]
+            if disparity[y, x] != other_disparity[y, x] or confidence[y, x] != other_confidence[y, x]:
+                m += 1
+    rows = np.empty(m, np.int64)
+    ours = np.empty(m, disparity.dtype)
+    theirs = np.empty(m, disparity.dtype)
+    j = 0
+    for y in range(n_rows):
+        for x in range(n_cols):
+            if disparity[y, x] != other_disparity[y, x] or confidence[y, x] != other_confidence[y, x]:
+                rows[j], ours[j], theirs[j] = y, disparity[y, x], other_disparity[y, x]
+                j += 1
+    return rows, ours, theirs
+
+
+@njit(cache=True)
+def _landing_rows(rows, ours, theirs, q_y, out):
+    """``out (Y,)`` bool: the rows of the view at ``q_y`` that the changed pixels (:func:`_changed`) land in,
+    under either map."""
+    n_rows = out.shape[0]
+    out[:] = False
+    for j in range(rows.shape[0]):
+        for d in (ours[j], theirs[j]):
+            y0 = int(np.floor(min(max(rows[j] + d * q_y, -2.0), n_rows + 1.0)))
+            for yy in range(y0, y0 + 2):
+                if 0 <= yy < n_rows:
+                    out[yy] = True
+
+
+@njit(cache=True)
+def _warp_scratch(disparity):
+    """A view's warped disparity, confidence and bins, and which pixels were filled: ``(Y, X)`` each."""
+    n_rows, n_cols = disparity.shape
+    return (np.empty((n_rows, n_cols), disparity.dtype), np.empty((n_rows, n_cols), np.float32),
+            np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_))
+
+
+@njit(cache=True)
+def _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
+                     out_bins, out_confidence, out_empty):
+    """One view of :func:`view_bins`: every row warped (:func:`_warp_view`), then sampled at the shift."""
+    warped, warped_confidence, warped_bins, filled = scratch
+    _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
+               filled, d_min, d_max, out_empty)
+    _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, np.ones(disparity.shape[0], np.bool_),
+                       out_bins, out_confidence, out_bins, out_confidence)
 
 
 @njit(cache=True, parallel=True)
-def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
+def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence, out_empty):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
     ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
     forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
-    shift (:func:`_shifted_bins_view`); views in parallel."""
-    n = positions.shape[0]
-    n_rows, n_cols = disparity.shape
-    for i in prange(n):
-        warped = np.empty((n_rows, n_cols), disparity.dtype)
-        warped_confidence = np.empty((n_rows, n_cols), np.float32)
-        filled = np.empty((n_rows, n_cols), np.bool_)
-        _warp_view(disparity, confidence, positions[i, 0], positions[i, 1], larger_first, warped,
-                   warped_confidence, filled)
-        _shifted_bins_view(warped, warped_confidence, slope * positions[i, 0], slope * positions[i, 1], edges,
-                           out_bins[i], out_confidence[i])
+    shift (:func:`_shifted_bins_view`); views in parallel. ``out_empty (n, Y)``: the rows of each view
+    nothing landed in (what :func:`view_bins_near` needs)."""
+    source_bins = _source_bins(disparity, edges)
+    d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
+    for i in prange(positions.shape[0]):
+        _whole_view_bins(disparity, confidence, source_bins, positions[i, 0], positions[i, 1], larger_first, slope,
+                         d_min, d_max, _warp_scratch(disparity), out_bins[i], out_confidence[i], out_empty[i])
+
+
+@njit(cache=True, parallel=True)
+def view_bins_near(disparity, confidence, other_disparity, other_confidence, other_bins, other_view_confidence,
+                   other_empty, positions, larger_first, slope, edges, out_bins, out_confidence, out_empty):
+    """:func:`view_bins` of ``disparity`` and ``confidence``, given those of another map in the same bins
+    (``other_disparity``, ``other_confidence``, its ``view_bins`` outputs ``other_bins``,
+    ``other_view_confidence``, ``other_empty``): in each view, only the rows that a pixel where the
+    maps differ lands in are warped (:func:`_landing_rows`, :func:`_warp_view_near`); the other rows are
+    the other map's. The same result as :func:`view_bins`, bit for bit."""
+    n_rows = disparity.shape[0]
+    source_bins = _source_bins(disparity, edges)
+    d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
+    changed_rows, ours, theirs = _changed(disparity, confidence, other_disparity, other_confidence)
+    for i in prange(positions.shape[0]):
+        scratch = _warp_scratch(disparity)
+        warped, warped_confidence, warped_bins, filled = scratch
+        q_y, q_x = positions[i, 0], positions[i, 1]
+        rows = np.empty(n_rows, np.bool_)
+        _landing_rows(changed_rows, ours, theirs, q_y, rows)
+        if _warp_view_near(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, other_empty[i], warped,
+                           warped_confidence, warped_bins, filled, d_min, d_max, out_empty[i]):
+            _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, rows, other_bins[i],
+                               other_view_confidence[i], out_bins[i], out_confidence[i])
+        else:
+            _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
+                             out_bins[i], out_confidence[i], out_empty[i])
 
 
 @njit(cache=True, parallel=True)
@@ -177,34 +385,65 @@ def views_differ(bins, other_bins, confidence, other_confidence, out):
                     out[y, x] = True
 
 
+@njit(cache=True, inline="always")
+def _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill, out_has_fill):
+    """:func:`in_focus_colour` at one pixel (``colour (C,)`` float32 scratch)."""
+    n, n_ch = bins.shape[0], values.shape[3]
+    colour[:] = 0.0
+    total = np.float32(0.0)
+    every = np.float32(0.0)
+    for i in range(n):
+        w = weights[i, y, x]
+        every += w
+        k = bins[i, y, x]
+        if k < 0 or not shows[k] or not w > 0.0:
+            continue
+        total += w
+        for c in range(n_ch):
+            colour[c] += w * values[i, y, x, c]
+    has = total >= share * max(every, least)
+    out_has_fill[y, x] = has
+    for c in range(n_ch):
+        out_fill[y, x, c] = colour[c] / total if has else colour[c]
+
+
 @njit(cache=True, parallel=True)
 def in_focus_colour(values, weights, bins, shows, fill_share, out_fill, out_has_fill):
     """The weighted mean colour ``(Y, X, C)`` of the samples whose bin ``shows`` an in-focus background,
     and ``(Y, X)`` whether they hold at least ``fill_share`` of the pixel's whole sample weight (the
     colour is the plain weighted sum elsewhere). Sums run over the views in order, in float32."""
-    n, n_rows, n_cols = bins.shape
-    n_ch = values.shape[3]
+    n_rows, n_cols = bins.shape[1], bins.shape[2]
     share = np.float32(fill_share)
     least = np.float32(1e-6)
     for y in prange(n_rows):
-        colour = np.zeros(n_ch, np.float32)
+        colour = np.zeros(values.shape[3], np.float32)
         for x in range(n_cols):
-            colour[:] = 0.0
-            total = np.float32(0.0)
-            every = np.float32(0.0)
+            _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill, out_has_fill)
+
+
+@njit(cache=True, parallel=True)
+def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, other_fill, other_has_fill, out_fill,
+                         out_has_fill):
+    """:func:`in_focus_colour` for views' bins that are another's, ``other_bins`` (whose outputs are
+    ``other_fill``, ``other_has_fill``), but here and there: made where any view's bin differs, the
+    other's elsewhere (the same result)."""
+    n, n_rows, n_cols = bins.shape
+    share = np.float32(fill_share)
+    least = np.float32(1e-6)
+    for y in prange(n_rows):
+        colour = np.zeros(values.shape[3], np.float32)
+        for x in range(n_cols):
+            same = True
             for i in range(n):
-                w = weights[i, y, x]
-                every += w
-                k = bins[i, y, x]
-                if k < 0 or not shows[k] or not w > 0.0:
-                    continue
-                total += w
-                for c in range(n_ch):
-                    colour[c] += w * values[i, y, x, c]
-            has = total >= share * max(every, least)
-            out_has_fill[y, x] = has
-            for c in range(n_ch):
-                out_fill[y, x, c] = colour[c] / total if has else colour[c]
+                if bins[i, y, x] != other_bins[i, y, x]:
+                    same = False
+                    break
+            if same:
+                out_has_fill[y, x] = other_has_fill[y, x]
+                out_fill[y, x] = other_fill[y, x]
+            else:
+                _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill,
+                                    out_has_fill)
 
 
 @njit(cache=True)

@@ -126,7 +126,7 @@ def _bins(disparity, slope, spacing, max_bins):
     return edges, centres, taps
 
 
-def _in_focus_colour(stack, bins, taps, order, occluders):
+def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     """The colour of the in-focus background at each pixel, from the views whose sample shows it.
 
     Only in-focus surfaces behind a clearly nearer one count (what an
@@ -136,6 +136,9 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     at least :data:`FILL_SHARE` of the views (by weight) show one: not a
     stray sample.
 
+    ``near``: :class:`Layers` in the same bins, order and occluders whose
+    fill is taken where every view's bin is theirs.
+
     Returns ``(fill (Y, X, C) float32, has_fill (Y, X) bool)``.
     """
     sharp = ~np.any(taps != 0, axis=1)
@@ -144,7 +147,11 @@ def _in_focus_colour(stack, bins, taps, order, occluders):
     shape = bins.shape[1:]
     fill = np.empty(shape + (stack.values.shape[-1],), np.float32)
     has_fill = np.empty(shape, bool)
-    _run("in_focus_colour", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, fill, has_fill)
+    if near is None:
+        _run("in_focus_colour", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, fill, has_fill)
+    else:
+        _run("in_focus_colour_near", stack.values, stack.weights, bins, sharp & behind, FILL_SHARE, near.view_bins,
+             near.fill, near.has_fill, fill, has_fill)
     return fill, has_fill
 
 
@@ -281,14 +288,24 @@ class SlopeRenderer:
         exact = np.array_equal(narrow, disparity)
         plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
         edges, centres, taps = plan
+        warped = narrow if exact else disparity
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        _run("view_bins", narrow if exact else disparity, confidence, self.positions, bool(larger_first), slope,
-             edges, bins, sample_conf)
+        empty_rows = np.empty((n, shape[0]), np.bool_)
+        near = (bins_of is not None and bins_of.larger_first == bool(larger_first) and bins_of.warped.dtype == warped.dtype
+                and bins_of.warped.shape == shape)
+        if near:  # only the rows of each view where the maps differ are warped again (the same result)
+            _run("view_bins_near", warped, confidence, bins_of.warped, bins_of.confidence, bins_of.view_bins,
+                 bins_of.view_confidence, bins_of.empty_rows, self.positions, bool(larger_first), slope, edges, bins,
+                 sample_conf, empty_rows)
+        else:
+            _run("view_bins", warped, confidence, self.positions, bool(larger_first), slope, edges, bins, sample_conf,
+                 empty_rows)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders)
-        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill)
+        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders, bins_of if near else None)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, warped, confidence,
+                      empty_rows, bool(larger_first))
 
     def composite(self, layers, *, within=None, elsewhere=None):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
@@ -333,6 +350,13 @@ class Layers:
         The bins front to back; for each, the last position in ``order`` of a bin that hides it.
     fill, has_fill : ndarray (Y, X, C) float32, (Y, X) bool
         The in-focus background behind occluders' edges.
+    warped, confidence : ndarray (Y, X)
+        The disparity as it was warped into the views (float32 where that
+        holds it exactly) and its confidence (float32).
+    empty_rows : ndarray (n, Y) bool
+        The rows of each view that nothing was warped into (filled along the columns).
+    larger_first : bool
+        The occlusion order the disparity was warped in.
     """
 
     disparity: np.ndarray
@@ -343,6 +367,10 @@ class Layers:
     occluders: np.ndarray
     fill: np.ndarray
     has_fill: np.ndarray
+    warped: np.ndarray
+    confidence: np.ndarray
+    empty_rows: np.ndarray
+    larger_first: bool
 
     @property
     def reach(self):

@@ -7,10 +7,12 @@ disparity. Cases are split:
 - ``"tune"``: the cases defaults may be chosen on;
 - ``"holdout"``: the cases reported as unseen (never used to choose anything);
 - ``"real"``: real arrays by the sub-grid protocol (holdout too);
-- ``"fresh-a"``, ``"fresh-b"``: random scenes (:func:`fresh_cases`): layers,
-  textures, view counts and camera effects drawn from fixed seeds. fresh-a
-  (seeds 300-319) showed the failures stop 21 fixed, so it was used to
-  choose; fresh-b (seeds 400-419) was first run after the choices were made.
+- ``"fresh-a"``, ``"fresh-b"``, ``"fresh-c"``: random scenes (:func:`fresh_cases`):
+  layers, textures, view counts and camera effects drawn from fixed seeds.
+  fresh-a (seeds 300-319) showed the failures stop 21 fixed, so it was used
+  to choose; fresh-b (seeds 400-419) was first run after those choices, then
+  used for one more (a period of 4 px, not 5); fresh-c (seeds 500-519) was
+  first run for the report, after every choice.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -162,7 +164,7 @@ def hci_cases():
 
 
 #: The seeds of the random scenes of each fresh split.
-FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420)}
+FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c": range(500, 520)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

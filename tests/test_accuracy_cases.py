@@ -107,3 +107,20 @@ def test_a_case_seen_through_a_camera_keeps_the_ideal_reference(three_layers):
     assert case.lightfield.weights is not None  # what a decoder with a white image hands over
     assert not np.array_equal(case.lightfield.data, three_layers.lightfield.data)
     np.testing.assert_array_equal(case.reference(1.0), three_layers.reference(1.0, interpolation="exact"))
+
+
+@pytest.mark.parametrize("seed", [300, 415, 500])
+def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physical(seed):
+    """A random scene is the same whenever its seed is drawn (so a split means the same cases on any
+    machine), its layers lie front to back in one depth order (disparity monotonic with depth: a real camera
+    sees no other), no two closer than 2 px per view, and the methods get no ground truth."""
+    case, again = (accuracy_cases.fresh_case(seed, "fresh", size=48) for _ in range(2))
+    np.testing.assert_array_equal(case.lightfield.data, again.lightfield.data)
+    assert case.name == again.name and case.slopes == again.slopes
+    layers = [float(part.split()[-1]) for part in case.name.split(": ")[1].split(" / ")]
+    steps = np.diff(layers)
+    assert np.all(steps > 0) or np.all(steps < 0), layers
+    assert np.min(np.abs(steps)) >= 2.0
+    assert "disparity" not in case.lightfield.meta and "disparity_range" not in case.lightfield.meta
+    assert set(np.unique(case.disparity)) <= set(np.float32(layers))
+    assert set(layers) <= set(case.slopes)

@@ -696,17 +696,19 @@ def _reduce_views(lum, valid, levels):
 
 def _tile_slopes(coarse, coarse_level, shape, slopes, margin, tile):
     """``(m, TY, TX)``: the slopes each tile needs, from the coarse estimate over the tile and half a tile
-    around it (NaN: not sure; a tile with nothing sure around it needs every slope), widened by ``margin``."""
+    around it (NaN: not sure; a tile with nothing sure around it needs every slope), widened by ``margin``.
+    ``coarse`` is one map ``(h, w)`` or several ``(k, h, w)`` (the estimate and its alternatives)."""
     scale = 2 ** coarse_level
     n_ty, n_tx = -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
     needed = np.zeros((len(slopes), n_ty, n_tx), bool)
-    height, width = coarse.shape
+    coarse = coarse.reshape((-1,) + coarse.shape[-2:])
+    height, width = coarse.shape[1:]
     for ty in range(n_ty):
         ys = slice(max(0, (ty * tile[0] - tile[0] // 2) // scale), min(height, -(-((ty + 1) * tile[0] + tile[0] // 2) // scale)))
         for tx in range(n_tx):
             xs = slice(max(0, (tx * tile[1] - tile[0] // 2) // scale),
                        min(width, -(-((tx + 1) * tile[1] + tile[0] // 2) // scale)))
-            block = coarse[ys, xs]
+            block = coarse[:, ys, xs]
             block = block[np.isfinite(block)]
             if block.size == 0:  # nothing sure around the tile: every slope of the grid
                 needed[:, ty, tx] = True
@@ -833,15 +835,18 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
                       _all_tiles(len(c_slopes), c_shape, TILE), c_shape, TILE)
         c_guide, _ = _reduce_views(np.moveaxis(guide, -1, 0).copy(), None, level)
         aggregated = _GuidedFilter(np.moveaxis(c_guide, 0, -1), max(1, radius // 2 ** level))(_relative_cost(cost))
-        coarse, c_confidence, _ = _winner(aggregated, c_slopes, c_step)
+        coarse, c_confidence, c_alternative = _winner(aggregated, c_slopes, c_step)
         margin = 1.5 * c_step
         # ambiguous coarse pixels (flat or periodic cost) say nothing about the range
         sure = c_confidence >= COARSE_SURE
         if sure.mean() < 0.01:
             sure = np.ones(coarse.shape, bool)
-        low_c, high_c = np.percentile(coarse[sure], [0.5, 99.5])
+        # a periodic texture's second fit stays in the sweep: the fine level must see both to say so
+        second = np.where(sure & np.isfinite(c_alternative), c_alternative, np.nan)
+        low_c, high_c = np.percentile(np.concatenate([coarse[sure], second[np.isfinite(second)]]), [0.5, 99.5])
         slopes = slopes[(slopes >= low_c - margin) & (slopes <= high_c + margin)]
-        needed = _tile_slopes(np.where(sure, coarse, np.nan), level, shape, slopes, margin=margin, tile=TILE)
+        needed = _tile_slopes(np.stack([np.where(sure, coarse, np.nan), second]), level, shape, slopes,
+                              margin=margin, tile=TILE)
     else:
         needed = _all_tiles(len(slopes), shape, TILE)
     seconds["coarse"] = time.perf_counter() - clock

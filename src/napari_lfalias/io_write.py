@@ -443,8 +443,15 @@ def _stop_cleanly(work):
             done.set()
 
     # Waited on through an Event: an interrupted Thread.join can mark a running thread stopped.
-    threading.Thread(target=run, name="lfalias-zarr-writer", daemon=True).start()
+    thread = threading.Thread(target=run, name="lfalias-zarr-writer", daemon=True)
     interrupted = None
+    try:
+        thread.start()
+    except KeyboardInterrupt as exc:  # start() waits for the thread to run: Ctrl-C can land there too
+        interrupted = exc
+        stop.set()
+        if thread.ident is None:  # it never started: nothing to wait for
+            done.set()
     while not done.is_set():
         try:
             done.wait(0.05)

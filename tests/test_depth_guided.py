@@ -326,6 +326,16 @@ def test_the_rendering_takes_the_fit_nearer_the_slope_only_a_period_away():
     assert np.all(guide._least_change(-5.0) == -6.0)  # the estimate is the nearer
 
 
+def test_an_estimate_with_an_alternative_of_another_shape_is_refused_by_name():
+    from napari_lfalias.disparity import DisparityEstimate
+
+    lf = textured_plane(n_views=3, size=32, seed=1).lightfield
+    ones = np.ones((32, 32), np.float32)
+    estimate = DisparityEstimate(ones, ones, (-2, 2), {}, np.full((16, 32), np.nan, np.float32))
+    with pytest.raises(ParameterError, match=r"disparity\.alternative must be a \(32, 32\) array"):
+        DepthGuide(lf, estimate).rendering(1.0)
+
+
 def test_the_fringe_does_not_cross_an_outline_misplaced_beyond_the_edge_tolerance():
     """Stripes (disparity 3) before tiles (-4), focused on the tiles, told a disparity whose stripes reach
     3 px beyond their outline (one more than the edge tolerance): near the outline the rendering depends on

@@ -214,15 +214,13 @@ class DepthGuide:
     def estimate(self):
         """The disparity and its confidence: ``(disparity (Y, X), confidence (Y, X))``."""
         if self._estimate is None:
-            from .disparity import disparity_and_confidence, estimate_disparity
+            from .disparity import checked_estimate, estimate_disparity
 
             given = self._given
             if given is None:
                 given = estimate_disparity(self.lf)
-            disparity, confidence = disparity_and_confidence(given, self.lf.image_shape)
+            disparity, confidence, self._alternative = checked_estimate(given, self.lf.image_shape)
             self._estimate = (disparity.astype(np.float32), confidence)
-            alternative = getattr(given, "alternative", None)
-            self._alternative = None if alternative is None else np.asarray(alternative, np.float32)
         return self._estimate
 
     def larger_first(self, slope):

@@ -160,17 +160,19 @@ class DisparityEstimate:
     alternative: np.ndarray | None = None
 
 
-def disparity_and_confidence(disparity, shape):
-    """A given disparity as ``(disparity float64 (Y, X), confidence float32 (Y, X))``, checked.
+def checked_estimate(disparity, shape):
+    """A given disparity as ``(disparity float64 (Y, X), confidence float32 (Y, X), alternative float32
+    (Y, X) or None)``, checked.
 
-    ``disparity`` is a :class:`DisparityEstimate` (its confidence is kept)
-    or an array (trusted everywhere: confidence 1).
+    ``disparity`` is a :class:`DisparityEstimate` (its confidence and
+    alternative are kept) or an array (trusted everywhere: confidence 1,
+    no alternative).
 
     Raises
     ------
     ParameterError
-        For a map not of ``shape``, not real, or holding NaN/Inf, or a
-        confidence outside [0, 1].
+        For a map not of ``shape``, not real, or holding NaN/Inf, a
+        confidence outside [0, 1], or an alternative of another shape.
     """
     from .baselines import _disparity_map
 
@@ -179,9 +181,15 @@ def disparity_and_confidence(disparity, shape):
         confidence = np.asarray(disparity.confidence)
         if confidence.shape != values.shape or not np.all((confidence >= 0) & (confidence <= 1)):
             raise ParameterError(f"disparity.confidence must be a {values.shape} array in [0, 1]")
-        return values, np.ascontiguousarray(confidence, np.float32)
+        alternative = disparity.alternative
+        if alternative is not None:
+            alternative = np.asarray(alternative, np.float32)
+            if alternative.shape != values.shape:
+                raise ParameterError(f"disparity.alternative must be a {values.shape} array (NaN where there is "
+                                     f"none), got shape {alternative.shape}")
+        return values, np.ascontiguousarray(confidence, np.float32), alternative
     values = _disparity_map(disparity, shape)
-    return values, np.ones(values.shape, np.float32)
+    return values, np.ones(values.shape, np.float32), None
 
 
 def _kernels():

@@ -211,6 +211,18 @@ def _read_map(path, what):
     return data.astype(np.float32), dict(metadata)
 
 
+def _map_beside(path, disparity, beside, what):
+    """The map in the file ``beside`` the disparity TIFF ``path``, checked to have the disparity's shape;
+    ``None`` where there is no such file."""
+    if not beside.is_file():
+        return None
+    values, _ = _read_map(beside, what)
+    if values.shape != disparity.shape:
+        raise ParameterError(f"{beside}: its shape {values.shape} is not the disparity's {disparity.shape} "
+                             f"({path.name}); write both again with `lfalias depth`")
+    return values
+
+
 def read_disparity(path):
     """Read a disparity TIFF (``lfalias depth``), and its confidence and alternative if ``<name>_confidence.tif``
     and ``<name>_alternative.tif`` lie beside it.
@@ -227,25 +239,17 @@ def read_disparity(path):
     DecodeError
         If a file is missing or not a TIFF.
     ParameterError
-        If a map is not one finite plane, or the confidence is not in [0, 1] or has another shape.
+        If a map is not one finite plane, a map beside it has another shape, or the confidence is not in
+        [0, 1].
     """
     path = Path(path)
     disparity, metadata = _read_map(path, "disparity map")
     confidence_path = confidence_of(path)
-    confidence = None
-    if confidence_path.is_file():
-        confidence, _ = _read_map(confidence_path, "confidence map")
-        if confidence.shape != disparity.shape:
-            raise ParameterError(f"{confidence_path}: its shape {confidence.shape} is not the disparity's "
-                                 f"{disparity.shape} ({path.name}); write both again with `lfalias depth`")
-        if confidence.min() < 0 or confidence.max() > 1:
-            raise ParameterError(f"{confidence_path}: a confidence must lie in [0, 1], got "
-                                 f"{confidence.min():.3g} .. {confidence.max():.3g}")
-    alternative_path = alternative_of(path)
+    confidence = _map_beside(path, disparity, confidence_path, "confidence map")
+    if confidence is not None and (confidence.min() < 0 or confidence.max() > 1):
+        raise ParameterError(f"{confidence_path}: a confidence must lie in [0, 1], got "
+                             f"{confidence.min():.3g} .. {confidence.max():.3g}")
     alternative = None
-    if confidence is not None and alternative_path.is_file():
-        alternative, _ = _read_map(alternative_path, "alternative map")
-        if alternative.shape != disparity.shape:
-            raise ParameterError(f"{alternative_path}: its shape {alternative.shape} is not the disparity's "
-                                 f"{disparity.shape} ({path.name}); write both again with `lfalias depth`")
+    if confidence is not None:
+        alternative = _map_beside(path, disparity, alternative_of(path), "alternative map")
     return DisparityFile(path, disparity, confidence, metadata, alternative)

@@ -268,47 +268,25 @@ def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole
     assert np.abs(whole.image - rendering.image).max() > 0.05
 
 
-def _view_bins_both_ways(disparity, confidence, other, other_confidence, positions, larger_first, slope, edges):
-    """The kernels' outputs for ``disparity``: warped whole, and warped near ``other``'s."""
-    from napari_lfalias._render_kernels import view_bins, view_bins_near
+@pytest.mark.parametrize("offset", [(1.0, 0.0), (1.0, 0.5), (0.0, 1.0)])
+def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offset(offset):
+    # A far background (disparity 0), a band at 1 whose lower part an occluder at 5 hides (larger in front).
+    # In a view below or beside the centre, the occluder moves 4 px more than the band and uncovers what lies
+    # behind its edge: the band (it goes on behind), not the background to either side of the occluder.
+    from napari_lfalias._render_kernels import view_bins
 
-    def outputs():
-        n, shape = len(positions), disparity.shape
-        return np.empty((n,) + shape, np.int16), np.empty((n,) + shape, np.float32), np.empty((n, shape[0]), bool)
-
-    theirs, whole, near = outputs(), outputs(), outputs()
-    view_bins(other, other_confidence, positions, larger_first, slope, edges, *theirs)
-    view_bins(disparity, confidence, positions, larger_first, slope, edges, *whole)
-    view_bins_near(disparity, confidence, other, other_confidence, *theirs, positions, larger_first, slope, edges,
-                   *near)
-    return whole, near
-
-
-@pytest.mark.parametrize("larger_first", [True, False])
-@pytest.mark.parametrize("case", ["moved edges", "rows emptied", "confidence"])
-def test_warping_only_the_rows_where_two_maps_differ_gives_what_warping_every_row_gives(case, larger_first):
-    scene = brick_room(n_views=5, size=64, seed=0)
-    positions = np.ascontiguousarray(scene.lightfield.flat_positions(), np.float64) * 2.0  # rows left empty
-    disparity = scene.disparity.astype(np.float32)
-    confidence = np.ones(disparity.shape, np.float32)
-    other, other_confidence = disparity.copy(), confidence.copy()
-    if case == "moved edges":
-        other = ndimage.grey_dilation(disparity, size=(5, 5)).astype(np.float32)
-    elif case == "rows emptied":  # a stretch of larger disparities: rows in between get nothing, and fill
-        disparity[20:40] = np.linspace(0.0, 12.0, 20, dtype=np.float32)[:, None]
-        disparity[30:32, 10:30] = -3.0
-    else:
-        confidence[10:20, 5:50] = 0.5
-    edges = np.linspace(float(disparity.min()), float(disparity.max()), 9)
-    edges[0], edges[-1] = -np.inf, np.inf
-    whole, near = _view_bins_both_ways(disparity, confidence, other, other_confidence, positions, larger_first, -2.0,
-                                       edges)
-    for a, b in zip(whole, near):
-        np.testing.assert_array_equal(a, b)
-    assert whole[2].any()  # some rows were filled along the columns
-    theirs, _ = _view_bins_both_ways(other, other_confidence, other, other_confidence, positions, larger_first, -2.0,
-                                     edges)
-    assert not np.array_equal(whole[0], theirs[0]) or not np.array_equal(whole[1], theirs[1])
+    disparity = np.zeros((48, 48), np.float32)
+    disparity[10:20, 14:34] = 1.0  # the band: rows 10-14 seen above the occluder, the rest hidden by it
+    disparity[15:35, 14:34] = 5.0  # the occluder
+    if offset[0] == 0.0:  # the same, turned: the band seen left of the occluder
+        disparity = np.ascontiguousarray(disparity.T)
+    edges = np.array([-np.inf, 0.5, 3.0, np.inf])  # bins: 0 background, 1 band, 2 occluder
+    bins = np.empty((1, 48, 48), np.int16)
+    confidence = np.empty((1, 48, 48), np.float32)
+    view_bins(disparity, np.ones(disparity.shape, np.float32), np.array([offset]), True, 0.0, edges, bins, confidence)
+    # the occluder's near edge lands 5 px on, the band's 1 px: the 3 px between (inset from the corners) are holes
+    uncovered = bins[0, 17:19, 20:30] if offset[0] else bins[0, 20:30, 17:19]
+    assert (uncovered == 1).all(), uncovered
 
 
 def test_the_fill_of_layers_in_anothers_bins_is_made_where_their_bins_differ_and_is_that_of_every_pixel():
@@ -348,6 +326,6 @@ def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
     # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
     view_bins(disparity, np.ones(disparity.shape, np.float32), np.zeros((1, 2)), False, 0.0, edges, bins,
-              confidence, np.empty((1, 1), bool))
+              confidence)
     expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
     np.testing.assert_array_equal(bins[0, 0], expected)

@@ -3,12 +3,9 @@
 - ``view_bins``: the centre-of-aperture disparity map forward-warped
   into every view (each centre pixel splats onto the four pixels around
   where it lands; the nearer surface wins), holes (disocclusions) filled
-  along the row from the farther side; then, for every view, the
+  along the view's offset from the farther side; then, for every view, the
   disparity bin of the surface its sample at ``p + slope * q_i`` shows
   (nearest pixel), and the confidence there; -1 outside the view.
-- ``view_bins_near``: the same for a map that differs from one already
-  done only here and there (the depth edges moved): only the rows of each
-  view that a changed pixel lands in are warped again.
 - ``views_differ``: where two such sets of views' bins differ.
 - ``in_focus_colour`` (``in_focus_colour_near``: for bins that another
   set's are but here and there): the colour of the in-focus background the views
@@ -27,7 +24,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "view_bins_near", "views_differ", "in_focus_colour", "in_focus_colour_near", "composite_views"]
+__all__ = ["view_bins", "views_differ", "in_focus_colour", "in_focus_colour_near", "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -77,30 +74,16 @@ def _fill_row(values, confidence, bins, filled, y, larger_first):
 
 
 @njit(cache=True)
-def _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, out_d, out_c, out_b, filled,
-               d_min, d_max):
-    """Forward-warp ``disparity``, ``confidence`` and the disparity bins ``source_bins (Y, X)`` into the rows
-    ``rows (Y,)`` (bool) of the view at ``(q_y, q_x)`` (``out_d``, ``out_c``, ``out_b``), holes filled
-    along those rows (:func:`_fill_row`); returns how many of their pixels stay unfilled. Each of those
-    rows is what warping every row makes of it: the samples landing in it are written in the same order.
-    ``filled (Y, X)`` is scratch; the other rows are left as they were. ``d_min``, ``d_max``: the least and
-    the largest disparity (the source rows that can land in a wanted row)."""
+def _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled):
+    """Forward-warp ``disparity``, ``confidence`` and the disparity bins ``source_bins (Y, X)`` into the view at
+    ``(q_y, q_x)`` (``out_d``, ``out_c``, ``out_b``): each sample lands on the four pixels around where it
+    moves, the nearer surface winning; ``filled (Y, X)`` says where something landed (NaN, 0, -1 elsewhere)."""
     n_rows, n_cols = disparity.shape
-    low = min(0.0, d_min * q_y, d_max * q_y)
-    high = max(0.0, d_min * q_y, d_max * q_y)
-    wanted = np.zeros(n_rows + 1, np.int64)  # how many of rows[:j] are wanted
+    out_d[:] = np.nan
+    out_c[:] = 0.0
+    out_b[:] = -1
+    filled[:] = False
     for y in range(n_rows):
-        wanted[y + 1] = wanted[y] + (1 if rows[y] else 0)
-        if rows[y]:
-            out_d[y] = np.nan
-            out_c[y] = 0.0
-            out_b[y] = -1
-            filled[y] = False
-    for y in range(n_rows):
-        first = min(max(int(np.floor(y + low)) - 1, 0), n_rows)
-        last = min(max(int(np.floor(y + high)) + 2, 0), n_rows)
-        if wanted[last] == wanted[first]:
-            continue  # nothing this row holds lands in a wanted row
         for x in range(n_cols):
             d = disparity[y, x]
             ty = y + d * q_y
@@ -109,99 +92,78 @@ def _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, rows,
                 continue  # lands outside the view (tested on floats: no integer overflow)
             y0 = int(np.floor(ty))
             x0 = int(np.floor(tx))
-            for yy in range(y0, y0 + 2):
-                if yy < 0 or yy >= n_rows or not rows[yy]:
-                    continue
-                for xx in range(x0, x0 + 2):
-                    if xx < 0 or xx >= n_cols:
-                        continue
+            for yy in range(max(y0, 0), min(y0 + 2, n_rows)):
+                for xx in range(max(x0, 0), min(x0 + 2, n_cols)):
                     if not filled[yy, xx] or _nearer(d, out_d[yy, xx], larger_first):
                         out_d[yy, xx] = d
                         out_c[yy, xx] = confidence[y, x]
                         out_b[yy, xx] = source_bins[y, x]
                         filled[yy, xx] = True
-    unfilled = 0
-    for y in range(n_rows):
-        if rows[y]:
-            unfilled += _fill_row(out_d, out_c, out_b, filled, y, larger_first)
-    return unfilled
+
+
+@njit(cache=True, inline="always")
+def _first_landed(landed, y, x, step_y, step_x):
+    """The first pixel ``(y + k step_y, x + k step_x)``, k = 1, 2, ..., rounded, that ``landed`` holds, as a
+    flat index (-1: none before the image's edge)."""
+    n_rows, n_cols = landed.shape
+    k = 1
+    while True:
+        yy = int(np.floor(y + k * step_y + 0.5))
+        xx = int(np.floor(x + k * step_x + 0.5))
+        if yy < 0 or yy >= n_rows or xx < 0 or xx >= n_cols:
+            return -1
+        if landed[yy, xx]:
+            return yy * n_cols + xx
+        k += 1
 
 
 @njit(cache=True)
-def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled, d_min, d_max,
-               out_empty):
-    """Forward-warp ``disparity``, ``confidence`` and ``source_bins (Y, X)`` into the view at ``(q_y, q_x)``
-    (:func:`_warp_rows` on every row); the rows nothing landed in (``out_empty (Y,)``) are filled along the
-    columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch."""
-    n_rows = disparity.shape[0]
-    _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, np.ones(n_rows, np.bool_), out_d, out_c,
-               out_b, filled, d_min, d_max)
+def _fill_along_offset(values, confidence, bins, filled, q_y, q_x, larger_first):
+    """Fill each unfilled pixel of a warped view from the first pixel something landed in along the view's
+    offset ``(q_y, q_x)``, either way: the one farther in depth, where both exist. A disocclusion opens along
+    the offset, between the occluder and what lies behind it, and shows the latter (across a horizontal edge
+    of an occluder, for a view above or below the centre, that is the surface above or below the edge, not
+    what lies to either side of the occluder)."""
+    scale = max(abs(q_y), abs(q_x))
+    if scale == 0.0:
+        return
+    step_y, step_x = q_y / scale, q_x / scale
+    landed = filled.copy()
+    flat_d, flat_c, flat_b = values.ravel(), confidence.ravel(), bins.ravel()
+    n_rows, n_cols = values.shape
     for y in range(n_rows):
-        out_empty[y] = not filled[y, 0]  # a row is filled whole, or had nothing to fill from
-    if out_empty.any():
+        for x in range(n_cols):
+            if landed[y, x]:
+                continue
+            ahead = _first_landed(landed, y, x, step_y, step_x)
+            behind = _first_landed(landed, y, x, -step_y, -step_x)
+            if ahead < 0 and behind < 0:
+                continue
+            pick = behind
+            if behind < 0 or (ahead >= 0 and _nearer(flat_d[behind], flat_d[ahead], larger_first)):
+                pick = ahead
+            values[y, x] = flat_d[pick]
+            confidence[y, x] = flat_c[pick]
+            bins[y, x] = flat_b[pick]
+            filled[y, x] = True
+
+
+@njit(cache=True)
+def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled):
+    """Forward-warp ``disparity``, ``confidence`` and ``source_bins (Y, X)`` into the view at ``(q_y, q_x)``
+    (:func:`_splat_view`), holes filled along the view's offset (:func:`_fill_along_offset`); what that
+    leaves (a walk that leaves the image both ways) is filled along its row, and the rows nothing landed
+    in along the columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch."""
+    n_rows = disparity.shape[0]
+    _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled)
+    _fill_along_offset(out_d, out_c, out_b, filled, q_y, q_x, larger_first)
+    empty = False
+    for y in range(n_rows):
+        _fill_row(out_d, out_c, out_b, filled, y, larger_first)
+        empty = empty or not filled[y, 0]  # a row is filled whole, or had nothing to fill from
+    if empty:
         for x in range(disparity.shape[1]):
             _fill_row(out_d.T, out_c.T, out_b.T, filled.T, x, larger_first)
-
-
-@njit(cache=True)
-def _empty_runs(empty):
-    """The runs ``(m, 2)`` ``[start, end)`` of True in ``empty (Y,)``."""
-    n = empty.shape[0]
-    runs = np.empty((n, 2), np.int64)
-    m = 0
-    y = 0
-    while y < n:
-        if not empty[y]:
-            y += 1
-            continue
-        end = y + 1
-        while end < n and empty[end]:
-            end += 1
-        runs[m, 0], runs[m, 1] = y, end
-        m += 1
-        y = end
-    return runs[:m]
-
-
-@njit(cache=True)
-def _warp_view_near(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, other_empty, out_d, out_c,
-                    out_b, filled, d_min, d_max, out_empty):
-    """:func:`_warp_view` of the rows ``rows (Y,)`` of a view, where another map's warp (whose rows nothing
-    landed in were ``other_empty``) is the same in every other row: those rows, and the runs of rows
-    nothing landed in that touch them (filled along the columns from the rows around them), are made as
-    :func:`_warp_view` makes them, and added to ``rows``. Returns False where that needs a row around such
-    a run that is not in ``rows`` (nothing is then made: warp the whole view)."""
-    n_rows, n_cols = disparity.shape
-    for run in _empty_runs(other_empty):  # the rows around the other map's empty runs are read by their fill
-        if run[0] > 0:
-            rows[run[0] - 1] = True
-        if run[1] < n_rows:
-            rows[run[1]] = True
-    _warp_rows(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, out_d, out_c, out_b, filled, d_min,
-               d_max)
-    for y in range(n_rows):
-        out_empty[y] = not filled[y, 0] if rows[y] else other_empty[y]
-    runs = _empty_runs(out_empty)
-    touched = np.zeros(runs.shape[0], np.bool_)
-    for j in range(runs.shape[0]):
-        a, b = runs[j, 0], runs[j, 1]
-        for y in range(max(a - 1, 0), min(b + 1, n_rows)):
-            touched[j] = touched[j] or rows[y]
-        if touched[j] and ((a > 0 and not rows[a - 1]) or (b < n_rows and not rows[b])):
-            return False
-    for j in range(runs.shape[0]):
-        if not touched[j]:
-            continue  # the same rows around it, the same fill: the other map's
-        a, b = runs[j, 0], runs[j, 1]
-        for y in range(a, b):
-            out_d[y] = np.nan
-            out_c[y] = 0.0
-            out_b[y] = -1
-            filled[y] = False
-            rows[y] = True
-        for x in range(n_cols):
-            _fill_run(out_d.T, out_c.T, out_b.T, filled.T, x, a, b, larger_first)
-    return True
 
 
 @njit(cache=True, inline="always")
@@ -255,11 +217,9 @@ def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_co
 
 
 @njit(cache=True)
-def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, rows, same_bins, same_confidence, out_bins,
-                       out_confidence):
+def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, out_bins, out_confidence):
     """The bin ``(Y, X)`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
-    warped bins ``warped_bins``; -1 outside the view), and its confidence; the output rows that read a
-    warped row not in ``rows (Y,)`` are copied from ``same_bins``, ``same_confidence``."""
+    warped bins ``warped_bins``; -1 outside the view), and its confidence."""
     n_rows, n_cols = warped_bins.shape
     if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
         out_bins[:] = -1
@@ -269,48 +229,8 @@ def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, rows, same_bins, 
     for x in range(n_cols):
         columns[x] = int(np.floor(x + dx + 0.5))
     for y in range(n_rows):
-        sy = int(np.floor(y + dy + 0.5))
-        if 0 <= sy < n_rows and not rows[sy]:
-            out_bins[y] = same_bins[y]
-            out_confidence[y] = same_confidence[y]
-        else:
-            _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_confidence)
-
-
-@njit(cache=True)
-def _changed(disparity, confidence, other_disparity, other_confidence):
-    """The pixels where the two disparity maps (or confidences) differ: their rows ``(m,)`` and their
-    disparities in either map ``(m,)``, ``(m,)``."""
-    n_rows, n_cols = disparity.shape
-    m = 0
-    for y in range(n_rows):
-        for x in range(n_cols):
-            if disparity[y, x] != other_disparity[y, x] or confidence[y, x] != other_confidence[y, x]:
-                m += 1
-    rows = np.empty(m, np.int64)
-    ours = np.empty(m, disparity.dtype)
-    theirs = np.empty(m, disparity.dtype)
-    j = 0
-    for y in range(n_rows):
-        for x in range(n_cols):
-            if disparity[y, x] != other_disparity[y, x] or confidence[y, x] != other_confidence[y, x]:
-                rows[j], ours[j], theirs[j] = y, disparity[y, x], other_disparity[y, x]
-                j += 1
-    return rows, ours, theirs
-
-
-@njit(cache=True)
-def _landing_rows(rows, ours, theirs, q_y, out):
-    """``out (Y,)`` bool: the rows of the view at ``q_y`` that the changed pixels (:func:`_changed`) land in,
-    under either map."""
-    n_rows = out.shape[0]
-    out[:] = False
-    for j in range(rows.shape[0]):
-        for d in (ours[j], theirs[j]):
-            y0 = int(np.floor(min(max(rows[j] + d * q_y, -2.0), n_rows + 1.0)))
-            for yy in range(y0, y0 + 2):
-                if 0 <= yy < n_rows:
-                    out[yy] = True
+        _sample_row(warped_bins, warped_confidence, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
+                    out_confidence)
 
 
 @njit(cache=True)
@@ -321,56 +241,19 @@ def _warp_scratch(disparity):
             np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_))
 
 
-@njit(cache=True)
-def _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
-                     out_bins, out_confidence, out_empty):
-    """One view of :func:`view_bins`: every row warped (:func:`_warp_view`), then sampled at the shift."""
-    warped, warped_confidence, warped_bins, filled = scratch
-    _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
-               filled, d_min, d_max, out_empty)
-    _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, np.ones(disparity.shape[0], np.bool_),
-                       out_bins, out_confidence, out_bins, out_confidence)
-
-
 @njit(cache=True, parallel=True)
-def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence, out_empty):
+def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
     ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
     forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
-    shift (:func:`_shifted_bins_view`); views in parallel. ``out_empty (n, Y)``: the rows of each view
-    nothing landed in (what :func:`view_bins_near` needs)."""
+    shift (:func:`_shifted_bins_view`); views in parallel."""
     source_bins = _source_bins(disparity, edges)
-    d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
     for i in prange(positions.shape[0]):
-        _whole_view_bins(disparity, confidence, source_bins, positions[i, 0], positions[i, 1], larger_first, slope,
-                         d_min, d_max, _warp_scratch(disparity), out_bins[i], out_confidence[i], out_empty[i])
-
-
-@njit(cache=True, parallel=True)
-def view_bins_near(disparity, confidence, other_disparity, other_confidence, other_bins, other_view_confidence,
-                   other_empty, positions, larger_first, slope, edges, out_bins, out_confidence, out_empty):
-    """:func:`view_bins` of ``disparity`` and ``confidence``, given those of another map in the same bins
-    (``other_disparity``, ``other_confidence``, its ``view_bins`` outputs ``other_bins``,
-    ``other_view_confidence``, ``other_empty``): in each view, only the rows that a pixel where the
-    maps differ lands in are warped (:func:`_landing_rows`, :func:`_warp_view_near`); the other rows are
-    the other map's. The same result as :func:`view_bins`, bit for bit."""
-    n_rows = disparity.shape[0]
-    source_bins = _source_bins(disparity, edges)
-    d_min, d_max = float(np.min(disparity)), float(np.max(disparity))
-    changed_rows, ours, theirs = _changed(disparity, confidence, other_disparity, other_confidence)
-    for i in prange(positions.shape[0]):
-        scratch = _warp_scratch(disparity)
-        warped, warped_confidence, warped_bins, filled = scratch
+        warped, warped_confidence, warped_bins, filled = _warp_scratch(disparity)
         q_y, q_x = positions[i, 0], positions[i, 1]
-        rows = np.empty(n_rows, np.bool_)
-        _landing_rows(changed_rows, ours, theirs, q_y, rows)
-        if _warp_view_near(disparity, confidence, source_bins, q_y, q_x, larger_first, rows, other_empty[i], warped,
-                           warped_confidence, warped_bins, filled, d_min, d_max, out_empty[i]):
-            _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, rows, other_bins[i],
-                               other_view_confidence[i], out_bins[i], out_confidence[i])
-        else:
-            _whole_view_bins(disparity, confidence, source_bins, q_y, q_x, larger_first, slope, d_min, d_max, scratch,
-                             out_bins[i], out_confidence[i], out_empty[i])
+        _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
+                   filled)
+        _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, out_bins[i], out_confidence[i])
 
 
 @njit(cache=True, parallel=True)

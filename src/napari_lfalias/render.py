@@ -291,21 +291,12 @@ class SlopeRenderer:
         warped = narrow if exact else disparity
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        empty_rows = np.empty((n, shape[0]), np.bool_)
-        near = (bins_of is not None and bins_of.larger_first == bool(larger_first) and bins_of.warped.dtype == warped.dtype
-                and bins_of.warped.shape == shape)
-        if near:  # only the rows of each view where the maps differ are warped again (the same result)
-            _run("view_bins_near", warped, confidence, bins_of.warped, bins_of.confidence, bins_of.view_bins,
-                 bins_of.view_confidence, bins_of.empty_rows, self.positions, bool(larger_first), slope, edges, bins,
-                 sample_conf, empty_rows)
-        else:
-            _run("view_bins", warped, confidence, self.positions, bool(larger_first), slope, edges, bins, sample_conf,
-                 empty_rows)
+        _run("view_bins", warped, confidence, self.positions, bool(larger_first), slope, edges, bins, sample_conf)
+        near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
         fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders, bins_of if near else None)
-        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, warped, confidence,
-                      empty_rows, bool(larger_first))
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first))
 
     def composite(self, layers, *, within=None, elsewhere=None):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
@@ -350,11 +341,6 @@ class Layers:
         The bins front to back; for each, the last position in ``order`` of a bin that hides it.
     fill, has_fill : ndarray (Y, X, C) float32, (Y, X) bool
         The in-focus background behind occluders' edges.
-    warped, confidence : ndarray (Y, X)
-        The disparity as it was warped into the views (float32 where that
-        holds it exactly) and its confidence (float32).
-    empty_rows : ndarray (n, Y) bool
-        The rows of each view that nothing was warped into (filled along the columns).
     larger_first : bool
         The occlusion order the disparity was warped in.
     """
@@ -367,9 +353,6 @@ class Layers:
     occluders: np.ndarray
     fill: np.ndarray
     has_fill: np.ndarray
-    warped: np.ndarray
-    confidence: np.ndarray
-    empty_rows: np.ndarray
     larger_first: bool
 
     @property

@@ -129,6 +129,41 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
                 cnt_g[x] += keep[x]
 
 
+@njit(cache=True)
+def _cells(member):
+    """The views split by the groups they belong to: ``(view_cell (n,), group_cells (G, C), group_size (G,),
+    C)``. Every view adds its differences to its one cell and each group sums its cells afterwards: on a 9x9
+    grid and nine groups, 17 cells instead of five group sums per view."""
+    n, n_groups = member.shape
+    signature = np.zeros((n, n_groups), np.bool_)
+    view_cell = np.empty(n, np.int64)
+    n_cells = 0
+    for i in range(n):
+        found = -1
+        for c in range(n_cells):
+            same = True
+            for g in range(n_groups):
+                if signature[c, g] != member[i, g]:
+                    same = False
+                    break
+            if same:
+                found = c
+                break
+        if found < 0:
+            signature[n_cells] = member[i]
+            found = n_cells
+            n_cells += 1
+        view_cell[i] = found
+    group_cells = np.zeros((n_groups, n_cells), np.int64)
+    group_size = np.zeros(n_groups, np.int64)
+    for g in range(n_groups):
+        for c in range(n_cells):
+            if signature[c, g]:
+                group_cells[g, group_size[g]] = c
+                group_size[g] += 1
+    return view_cell, group_cells, group_size, n_cells
+
+
 @njit(cache=True, parallel=True, fastmath=True)
 def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
                 tolerance, within, view_scale, out):
@@ -174,14 +209,18 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     """
     n, n_feat, n_rows, n_cols = features.shape
     n_groups = member.shape[1]
-    view_groups = [np.flatnonzero(member[i]) for i in range(n)]
+    view_cell, group_cells, group_size, n_cells = _cells(member)
+    view_cells = [view_cell[i:i + 1] for i in range(n)]
     for t in prange(tiles.shape[0]):
         y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
         height, width = y1 - y0, x1 - x0
         ref = np.empty((height, n_feat, width), np.float32)
         ref_count = np.empty((height, width), np.float32)
-        acc = np.empty((n_groups, height, width), np.float32)
-        cnt = np.empty((n_groups, height, width), np.float32)
+        acc = np.empty((n_cells, height, width), np.float32)
+        cnt = np.empty((n_cells, height, width), np.float32)
+        group_acc = np.empty(width, np.float32)
+        group_cnt = np.empty(width, np.float32)
+        best = np.empty(width, np.float32)
         for idx in range(first[t], first[t + 1]):
             j = order[idx]
             s = slopes[j]
@@ -209,22 +248,30 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                 if yb <= ya or xb <= xa:
                     continue
                 _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
-                            ref_count, view_groups[i], acc, cnt, tolerance, within, view_scale[j, i])
-            if within:
-                for r in range(height):
-                    for x in range(width):
-                        c0 = cnt[0, r, x]
-                        out[j, y0 + r, x0 + x] = acc[0, r, x] / c0 if c0 > 0.0 else np.float32(0.0)
-                continue
+                            ref_count, view_cells[i], acc, cnt, tolerance, within, view_scale[j, i])
             for r in range(height):
-                for x in range(width):
-                    best = np.inf
-                    for g in range(n_groups):
-                        if cnt[g, r, x] >= min_count[g]:
-                            value = acc[g, r, x] / cnt[g, r, x]
-                            if value < best:
-                                best = value
-                    out[j, y0 + r, x0 + x] = best
+                best[:] = np.inf
+                for g in range(n_groups if not within else 1):
+                    # a group's sums are those of its cells
+                    group_acc[:] = 0.0
+                    group_cnt[:] = 0.0
+                    for k in range(group_size[g]):
+                        c = group_cells[g, k]
+                        for x in range(width):
+                            group_acc[x] += acc[c, r, x]
+                            group_cnt[x] += cnt[c, r, x]
+                    if within:  # the share of the views that agree (group 0: all of them)
+                        for x in range(width):
+                            c0 = group_cnt[x]
+                            best[x] = group_acc[x] / c0 if c0 > 0.0 else np.float32(0.0)
+                        continue
+                    least = min_count[g]
+                    for x in range(width):
+                        if group_cnt[x] >= least:
+                            value = group_acc[x] / group_cnt[x]
+                            if value < best[x]:
+                                best[x] = value
+                out[j, y0 + r, x0:x1] = best
 
 
 @njit(cache=True, inline="always")

@@ -209,6 +209,7 @@ class DepthGuide:
         self._slope = None
         self._at_slope = {}  # what was made for self._slope, by name
         self._focus_test = None
+        self._luminance = None
 
     @property
     def estimate(self):
@@ -391,15 +392,29 @@ class DepthGuide:
         if self._focus_test is None:
             from .disparity import FocusTest
 
-            self._focus_test = FocusTest(self.lf)
+            self._focus_test = FocusTest(self.lf, self._view_luminance)
         return self._focus_test
+
+    @property
+    def _view_luminance(self):
+        """The luminance ``(n, Y, X)`` of the views (:func:`~napari_lfalias.disparity.view_luminance`), made
+        once: the focus test and the angular variation read it."""
+        if self._luminance is None:
+            from .disparity import view_luminance
+
+            self._luminance = view_luminance(self.lf)
+        return self._luminance
 
     def angular_cv(self, slope):
         """The angular coefficient of variation of the views' luminance at ``slope``, ``(Y, X)``."""
         from .refocus import view_moments
 
         def make():
-            moments = view_moments(self.lf.luminance(), slope)
+            lf = self.lf
+            luminance = lf if lf.n_channels == 1 else LightField._derived(
+                self._view_luminance.reshape(lf.data.shape[:-1] + (1,)), lf.positions, lf.meta, lf.weights,
+                lf._nonfinite)  # lf.luminance(), made once
+            moments = view_moments(luminance, slope)
             mean = moments.mean[..., 0]
             floor = max(DARK_FLOOR * float(mean.max(initial=0.0)), float(np.finfo(np.float32).tiny))
             return np.sqrt(np.maximum(moments.variance[..., 0], 0)) / np.maximum(mean, floor)

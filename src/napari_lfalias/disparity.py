@@ -209,11 +209,26 @@ def _run(name, *args):
 
 # -- inputs ------------------------------------------------------------------------------
 
-def _luminance_views(lf):
-    """Luminance ``(n, Y, X)`` float32 scaled so the bright level is 1, and the sample weights ``(n, Y, X)``
-    relative to the largest at each pixel, or None."""
+def view_luminance(lf):
+    """The luminance ``(n, Y, X)`` of ``lf``'s views (Rec. 709 of colour data; the data of one channel, as
+    they are).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias import LightField
+    >>> view_luminance(LightField(np.ones((2, 2, 3, 3, 3), np.float32))).shape
+    (4, 3, 3)
+    """
     views = lf.views()
-    lum = np.array(views[..., 0] if lf.n_channels == 1 else views @ REC709, np.float32)  # a copy: scaled below
+    return views[..., 0] if lf.n_channels == 1 else views @ REC709
+
+
+def _luminance_views(lf, luminance=None):
+    """Luminance ``(n, Y, X)`` float32 scaled so the bright level is 1, and the sample weights ``(n, Y, X)``
+    relative to the largest at each pixel, or None. ``luminance``: :func:`view_luminance` of ``lf``, where
+    already made (it is not changed)."""
+    lum = np.asarray(view_luminance(lf) if luminance is None else luminance, np.float32)  # scaled into a copy below
     weights = lf.flat_weights()
     valid = None
     if weights is not None:
@@ -226,8 +241,7 @@ def _luminance_views(lf):
     if not math.isfinite(scale) or scale <= 0:
         seen = lum if valid is None else lum[valid > 0.5]
         scale = float(np.max(np.abs(seen), initial=0.0)) or 1.0
-    lum *= np.float32(1.0 / scale)
-    return lum, valid
+    return lum * np.float32(1.0 / scale), valid
 
 
 def _bright_level(values, valid=None, samples=1 << 20):
@@ -933,6 +947,8 @@ class FocusTest:
     ----------
     lf : LightField
         The light field (its luminance features are made once and kept).
+    luminance : ndarray (n, Y, X), optional
+        :func:`view_luminance` of ``lf``, where already made.
 
     The test is conservative: a view resampled between pixels differs from
     the centre by its interpolation error, so on a textured plane in focus
@@ -947,9 +963,9 @@ class FocusTest:
     (True, True)
     """
 
-    def __init__(self, lf):
+    def __init__(self, lf, luminance=None):
         self.positions = lf.flat_positions().astype(np.float64)
-        lum, self.valid = _luminance_views(lf)
+        lum, self.valid = _luminance_views(lf, luminance)
         self.features = _features(lum)
         reference = self.features[_reference_views(self.positions)].mean(axis=0)  # (K, Y, X)
         energy = _box(np.square(reference - _box(reference, FOCUS_RADIUS)), FOCUS_RADIUS).sum(axis=0)

@@ -453,8 +453,9 @@ class DepthGuide:
 
         def make():
             spacing = view_spacing(self.lf.positions)
-            own = np.abs(self.estimate[0].astype(np.float64) - slope) * spacing
-            reaching = ghosts_reaching(self.estimate[0], slope, spacing, aperture_radius(self.lf) / spacing,
+            disparity = self._rendered_disparity(slope)  # the windows of the surfaces that were rendered
+            own = np.abs(disparity.astype(np.float64) - slope) * spacing
+            reaching = ghosts_reaching(disparity, slope, spacing, aperture_radius(self.lf) / spacing,
                                        self.larger_first(slope))
             half = np.maximum(np.rint(0.5 * CONSISTENCY_PERIODS * own), np.rint(0.5 * REACHING_PERIODS * reaching))
             half = np.minimum(half, max(self.lf.image_shape))

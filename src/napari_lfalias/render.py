@@ -14,7 +14,9 @@ when not given):
 
 1. The centre-of-aperture disparity is forward-warped into every view
    (nearest surface wins), so each view knows which surface each of its
-   samples shows.
+   samples shows. What the centre does not see (a disocclusion) opens
+   along the view's offset, and is given the farther of the surfaces on
+   either side of it that way.
 2. Each view's shifted samples (as in :func:`~napari_lfalias.refocus`) are
    split into disparity bins of at most ``BIN_PX`` px of blur width.
 3. Each bin (premultiplied colour and coverage) is blurred by the box its

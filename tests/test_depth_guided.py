@@ -292,8 +292,7 @@ def test_a_periodic_background_a_period_off_is_not_rendered_so():
     behind a checkerboard patch (-4.1) and a brick patch (2.1), 3x3 views with noise, no known disparity
     range. The views fit the wall a period (12 px) away as well; the estimate put it there on half of it,
     and rendered so it lost 9.1 dB overall at slope 3.7 (17.6 on the clean pixels), 3.4 / 10.1 with the
-    coarse range and the trust raised. Rendering the nearer of the two fits to the slope: +0.5 / -0.3; with
-    groups that lost views to the image's edge left out of the cost (stop 22): +0.4 / -0.53."""
+    coarse range and the trust raised. Rendering the nearer of the two fits to the slope: +0.5 / -0.3."""
     layers = [(-4.1, "checker", (0.23, 0.53, 0.15, 0.6)), (2.1, "bricks", (0.16, 0.61, 0.5, 0.95)),
               (4.9, "checker", None)]
     scene = layered_scene(layers, n_views=3, size=128, seed=315)
@@ -307,7 +306,7 @@ def test_a_periodic_background_a_period_off_is_not_rendered_so():
         image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
         clean = ~metrics.aliased_pixels(naive, reference)
         gains = [_gain(image, naive, reference, region) for region in (None, clean)]
-        assert gains[0] >= -0.1 and gains[1] >= -0.6, (slope, gains)
+        assert gains[0] >= -0.1 and gains[1] >= -0.5, (slope, gains)
 
 
 def test_the_rendering_takes_the_fit_nearer_the_slope_only_a_period_away():

@@ -176,17 +176,11 @@ def test_two_planes_are_each_right_away_from_their_occlusion_edge(layers):
     front, back = layers[0][0], layers[1][0]
     error = np.abs(estimate.disparity - truth)
     closer_to_the_other = np.abs(estimate.disparity - np.where(truth == front, back, front)) < error
-    inner = np.zeros(truth.shape, bool)
-    inner[2:-2, 2:-2] = True
     for disparity in (front, back):
         plane = far & (truth == disparity)
         assert plane.sum() > 300
-        # measured: 99.8 to 100 % within 0.15 px (what is off is the sub-step error above, not the edge); on
-        # the outer two rows and columns, where the groups that lost views to the image's edge do not count
-        # (INSIDE_SHARE), the noise background has 0.2-0.55 px errors here and there: 97.1 % within 0.15 there
-        # and in all
-        assert np.mean(error[plane & inner] <= 0.15) >= 0.99
-        assert np.mean(error[plane] <= 0.15) >= 0.96
+        # measured: 99.8 to 100 % within 0.15 px (what is off is the sub-step error above, not the edge)
+        assert np.mean(error[plane] <= 0.15) >= 0.99
         # the edge does not spread: no pixel of one plane takes the other plane's disparity
         assert not closer_to_the_other[plane].any()
 
@@ -275,20 +269,6 @@ def test_the_coarse_level_keeps_a_periodic_wall_s_second_fit_in_the_sweep():
     estimate = lfa.estimate_disparity(lf)
     wall = scene.disparity == np.float32(5.0)
     assert np.mean(np.abs(estimate.disparity[wall] - 5.0) < 0.5) >= 0.9
-
-
-def test_views_that_leave_the_image_do_not_pull_a_striped_wall_a_period_off_at_its_edge():
-    """Stripes repeat along the rows; only the views above and below the centre tell the wall's disparity
-    (1.7) from the same plus a period. Near the top and bottom rows, a slope a period off pushed those views
-    out of the image, and the half of the aperture left without them fitted it better: the outer ten rows
-    came out a period off (fresh scene 613, confidence 0.8). A group counts only where most of its views
-    sample inside the image (``INSIDE_SHARE``)."""
-    scene = layered_scene([(1.7, "stripes", None)], n_views=3, size=128, seed=613)
-    lf = capture(scene.lightfield, read_noise=0.0015, shot_noise=0.005, seed=613)
-    estimate = lfa.estimate_disparity(lfa.LightField(lf.data, lf.positions, {}, weights=lf.weights))
-    off = np.abs(estimate.disparity - 1.7) > 1.0
-    assert off[:10].mean() <= 0.05 and off[-10:].mean() <= 0.05  # measured: 0 (was: all of them)
-    assert off.mean() <= 0.05
 
 
 def test_a_periodic_wall_searched_over_several_periods_names_the_other_period():

@@ -40,23 +40,6 @@ def _taps(shift, n):
     return base, frac, lo, max(hi, lo)
 
 
-@njit(cache=True)
-def _inside_counts(bounds, views, y, x0, out):
-    """``out[x]`` for ``x`` along row ``y`` from column ``x0`` (``out (W + 1,)``, the last one scratch): how
-    many of ``views`` sample inside the image there, each inside ``bounds[i] = (y0, y1, x0, x1)``."""
-    width = out.shape[0] - 1
-    out[:] = 0
-    for k in range(views.shape[0]):
-        i = views[k]
-        if bounds[i, 0] <= y < bounds[i, 1]:
-            a, b = max(bounds[i, 2] - x0, 0), min(bounds[i, 3] - x0, width)
-            if b > a:
-                out[a] += 1
-                out[b] -= 1
-    for x in range(1, width):
-        out[x] += out[x - 1]
-
-
 @njit(cache=True, inline="always")
 def _add_view(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, weight, sums, count):
     """Add ``weight`` x the bilinear samples of view ``i`` to ``sums (rows, K, width)`` and its validity to
@@ -182,8 +165,7 @@ def _cells(member):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, min_inside, tiles, first,
-                order,
+def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
                 tolerance, within, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
@@ -207,9 +189,6 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         Group membership of every view.
     min_count : (G,) float32
         Fewest valid views a group needs to count.
-    min_inside : (G,) int64
-        Fewest of its views whose sample lies inside the image a group
-        needs to count, whatever their weights (:func:`_inside_counts`).
     tiles : (T, 4) int64
         ``(y0, y1, x0, x1)`` of every tile.
     first : (T + 1,) int64, order : (S,) int64
@@ -232,7 +211,6 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     n_groups = member.shape[1]
     view_cell, group_cells, group_size, n_cells = _cells(member)
     view_cells = [view_cell[i:i + 1] for i in range(n)]
-    group_views = [np.flatnonzero(member[:, g]) for g in range(n_groups)]
     for t in prange(tiles.shape[0]):
         y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
         height, width = y1 - y0, x1 - x0
@@ -243,14 +221,9 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         group_acc = np.empty(width, np.float32)
         group_cnt = np.empty(width, np.float32)
         best = np.empty(width, np.float32)
-        inside = np.empty(width + 1, np.int64)
-        bounds = np.empty((n, 4), np.int64)
         for idx in range(first[t], first[t + 1]):
             j = order[idx]
             s = slopes[j]
-            for i in range(n):
-                _, _, bounds[i, 0], bounds[i, 1] = _taps(s * positions[i, 0], n_rows)
-                _, _, bounds[i, 2], bounds[i, 3] = _taps(s * positions[i, 1], n_cols)
             ref[:] = 0.0
             ref_count[:] = 0.0
             acc[:] = 0.0
@@ -293,9 +266,8 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                             best[x] = group_acc[x] / c0 if c0 > 0.0 else np.float32(0.0)
                         continue
                     least = min_count[g]
-                    _inside_counts(bounds, group_views[g], y0 + r, x0, inside)
                     for x in range(width):
-                        if group_cnt[x] >= least and inside[x] >= min_inside[g]:
+                        if group_cnt[x] >= least:
                             value = group_acc[x] / group_cnt[x]
                             if value < best[x]:
                                 best[x] = value

@@ -82,12 +82,6 @@ STEP_PX = 0.5
 COST_CAP = 0.5
 #: Cost floor added before the logarithm (features are normalised to a bright level of 1).
 COST_EPS = 1e-6
-#: A view group (all views, a half-aperture) counts at a pixel and slope only where at least this share of its
-#: views samples inside the image. Fewer views fit a wrong slope more easily, and the views a wrong slope pushes
-#: out of the image may be the very ones that tell it apart: near the top and bottom rows, a texture that
-#: repeats along the rows was fitted a period off, by the half whose views across the rows had left the image
-#: (fresh scene 613, stripes at 1.7 estimated at 11.0 with confidence 0.8 in its outer ten rows).
-INSIDE_SHARE = 0.6
 #: (rows, columns) of the tiles the sweep runs over: each needs only the slopes the coarse level
 #: allows around it, and wide tiles keep the inner loops long.
 TILE = (32, 128)
@@ -285,8 +279,8 @@ def _features(lum):
 
 def _groups(positions):
     """Membership ``(n, 9)`` of all views and the eight half-apertures (split along the rows, the columns
-    and both diagonals), the least summed sample weight each needs to count (a third of its views, at
-    least 1.5), and the fewest of its views that must sample inside the image (:data:`INSIDE_SHARE`).
+    and both diagonals), and the least summed sample weight each needs to count (a third of its views, at
+    least 1.5).
 
     Only the diagonal halves keep a pixel beside a diagonal occluding edge
     clear of the occluder's views: without them the statue of HCI antinous
@@ -300,8 +294,7 @@ def _groups(positions):
     member = np.stack([np.ones(len(q), bool)] + [half for a in along for half in (a <= eps, a >= -eps)], axis=1)
     counts = member.sum(axis=0)
     min_count = np.maximum(1.5, 0.3 * counts).astype(np.float32)
-    min_inside = np.ceil(INSIDE_SHARE * counts - 1e-9).astype(np.int64)
-    return np.ascontiguousarray(member), min_count, min_inside
+    return np.ascontiguousarray(member), min_count
 
 
 def _reference_views(positions):
@@ -344,9 +337,9 @@ def _all_tiles(n_slopes, shape, tile):
 def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=None):
     """Cost volume ``(m, Y, X)`` float32 (``inf`` where not computed or not enough views); with a
     ``tolerance (Y, X)``, the share of the views that agree with the centre instead."""
-    member, min_count, min_inside = _groups(positions)
+    member, min_count = _groups(positions)
     if tolerance is not None:  # the share of agreeing views is counted over all of them (group 0)
-        member, min_count, min_inside = member[:, :1], min_count[:1], np.zeros(1, np.int64)
+        member, min_count = member[:, :1], min_count[:1]
     out = np.full((len(slopes),) + shape, np.inf, np.float32)
     has_valid = valid is not None
     valid = valid if has_valid else np.ones((1, 1, 1), np.float32)
@@ -354,7 +347,7 @@ def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=No
     tolerance = np.ascontiguousarray(tolerance, np.float32) if within else np.zeros((1, 1), np.float32)
     tiles, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
-         np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count, min_inside,
+         np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count,
          tiles, first, order, tolerance, within, _blur_scales(positions, slopes), out)
     return out
 

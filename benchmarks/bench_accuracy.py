@@ -156,6 +156,9 @@ def main(argv=None):
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None else args.out.parent / "accuracy"
+    if images_dir is not None and not (args.split or args.cases):  # a random scene's images are kept only
+        for stale in images_dir.glob("fresh_*.png"):                 # while the default loses there
+            stale.unlink()
     sections = []
     summary = {}
     strong = []  # (split, default's gain where aliased, the true-disparity rendering's) per slope with aliasing

@@ -239,4 +239,6 @@ def test_the_default_reduction_does_not_depend_on_the_scale_of_the_data(peak):
     scaled = lfa.LightField((lf.data.astype(np.float64) * factor).astype(np.float32), lf.positions, lf.meta)
     found = lfa.reduce_aliasing(scaled, 2.0)
     np.testing.assert_array_equal(found.detections[0].mask, reference.detections[0].mask)
-    np.testing.assert_allclose(found.image / factor, reference.image, rtol=1e-5, atol=1e-6)
+    # float32 sums of samples scaled by a factor that is not a power of two round differently (measured: one
+    # element of 6912 1.7e-5 apart); an overflow or underflow would be far off
+    np.testing.assert_allclose(found.image / factor, reference.image, rtol=1e-4, atol=1e-6)

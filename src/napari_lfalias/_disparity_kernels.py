@@ -196,7 +196,8 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     tolerance : (Y, X) float32, within : bool
         With ``within``, ``out`` is instead the share (by weight) of all
         the views whose difference to the reference is at most
-        ``tolerance`` at the pixel (the views that agree with the centre).
+        ``tolerance`` at the pixel (the views that agree with the centre);
+        ``member`` then holds the one group of all the views.
     view_scale : (m, n) float32
         Factor of view ``i``'s squared differences at slope ``j`` (not
         used with ``within``).
@@ -251,7 +252,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                             ref_count, view_cells[i], acc, cnt, tolerance, within, view_scale[j, i])
             for r in range(height):
                 best[:] = np.inf
-                for g in range(n_groups if not within else 1):
+                for g in range(n_groups):
                     # a group's sums are those of its cells
                     group_acc[:] = 0.0
                     group_cnt[:] = 0.0

@@ -36,13 +36,12 @@ def _nearer(a, b, larger_first):
 def _fill_run(values, confidence, bins, filled, y, x, end, larger_first):
     """Fill the unfilled run ``[x, end)`` of row ``y`` from the nearer filled neighbour that is farther away in
     depth (a disocclusion shows the background): that on its left, or on its right where the left one is
-    nearer (or where there is none on the left). Returns how many pixels stay unfilled (the whole run,
-    where it has no neighbour)."""
+    nearer (or where there is none on the left); a run with no neighbour stays unfilled."""
     n_cols = values.shape[1]
     left = x - 1
     right = end if end < n_cols else -1
     if left < 0 and right < 0:
-        return end - x
+        return
     pick = left
     if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
         pick = right
@@ -51,15 +50,12 @@ def _fill_run(values, confidence, bins, filled, y, x, end, larger_first):
         confidence[y, k] = confidence[y, pick]
         bins[y, k] = bins[y, pick]
         filled[y, k] = True
-    return 0
 
 
 @njit(cache=True)
 def _fill_row(values, confidence, bins, filled, y, larger_first):
-    """Fill the unfilled runs of row ``y`` (:func:`_fill_run`); a row with nothing filled stays as it is.
-    Returns how many of its pixels stay unfilled."""
+    """Fill the unfilled runs of row ``y`` (:func:`_fill_run`); a row with nothing filled stays as it is."""
     n_cols = values.shape[1]
-    unfilled = 0
     x = 0
     while x < n_cols:
         if filled[y, x]:
@@ -68,9 +64,8 @@ def _fill_row(values, confidence, bins, filled, y, larger_first):
         end = x + 1  # the run is [x, end)
         while end < n_cols and not filled[y, end]:
             end += 1
-        unfilled += _fill_run(values, confidence, bins, filled, y, x, end, larger_first)
+        _fill_run(values, confidence, bins, filled, y, x, end, larger_first)
         x = end
-    return unfilled
 
 
 @njit(cache=True)

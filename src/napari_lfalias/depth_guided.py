@@ -392,17 +392,15 @@ class DepthGuide:
         if self._focus_test is None:
             from .disparity import FocusTest
 
-            self._focus_test = FocusTest(self.lf, self._view_luminance)
+            self._focus_test = FocusTest(self.lf, self._luminance_lf.views()[..., 0])
         return self._focus_test
 
     @property
-    def _view_luminance(self):
-        """The luminance ``(n, Y, X)`` of the views (:func:`~napari_lfalias.disparity.view_luminance`), made
-        once: the focus test and the angular variation read it."""
+    def _luminance_lf(self):
+        """The light field's luminance (:meth:`~napari_lfalias.LightField.luminance`), made once: the focus
+        test and the angular variation of every slope read it."""
         if self._luminance is None:
-            from .disparity import view_luminance
-
-            self._luminance = view_luminance(self.lf)
+            self._luminance = self.lf.luminance()
         return self._luminance
 
     def angular_cv(self, slope):
@@ -410,11 +408,7 @@ class DepthGuide:
         from .refocus import view_moments
 
         def make():
-            lf = self.lf
-            luminance = lf if lf.n_channels == 1 else LightField._derived(
-                self._view_luminance.reshape(lf.data.shape[:-1] + (1,)), lf.positions, lf.meta, lf.weights,
-                lf._nonfinite)  # lf.luminance(), made once
-            moments = view_moments(luminance, slope)
+            moments = view_moments(self._luminance_lf, slope)
             mean = moments.mean[..., 0]
             floor = max(DARK_FLOOR * float(mean.max(initial=0.0)), float(np.finfo(np.float32).tiny))
             return np.sqrt(np.maximum(moments.variance[..., 0], 0)) / np.maximum(mean, floor)

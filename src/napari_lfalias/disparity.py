@@ -69,7 +69,7 @@ import numpy as np
 
 from . import _validate
 from .errors import ParameterError
-from .lightfield import REC709, LightField
+from .lightfield import LightField
 from .pyramid import _reduce_stack, level_shape
 
 __all__ = ["DisparityEstimate", "estimate_disparity", "iter_estimate_disparity", "disparity_scores", "FocusTest"]
@@ -220,8 +220,7 @@ def view_luminance(lf):
     >>> view_luminance(LightField(np.ones((2, 2, 3, 3, 3), np.float32))).shape
     (4, 3, 3)
     """
-    views = lf.views()
-    return views[..., 0] if lf.n_channels == 1 else views @ REC709
+    return lf.luminance().views()[..., 0]
 
 
 def _luminance_views(lf, luminance=None):

@@ -438,9 +438,9 @@ def _scores_and_windows(scene, slope, monkeypatch):
     windows = []
     composite = render_module._composite
 
-    def spy(stack, layers, within=None):
+    def spy(layers, within=None):
         windows.append(within)
-        return composite(stack, layers, within)
+        return composite(layers, within)
 
     monkeypatch.setattr(render_module, "_composite", spy)
     # an estimate is a little noisy: its edge renderings differ from the rendering everywhere it is not in focus

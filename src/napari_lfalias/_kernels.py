@@ -187,14 +187,19 @@ def refocus_sum(views, n_ch, weights, has_weight, base, frac, view_weights, out_
 
 @njit(cache=True, parallel=True)
 def shifted_stack(views, n_ch, weights, has_weight, base, frac, out_values, out_weights):
-    """Every view resampled: ``out_values (n, Y, X, C)`` normalised (0 where unseen), ``out_weights (n, Y, X)``."""
-    n, n_rows, n_cols = views.shape[0], views.shape[1], views.shape[2] // n_ch
+    """Every view resampled: ``out_values (n, Y', X', C)`` normalised (0 where unseen), ``out_weights (n, Y', X')``.
+
+    The output may be larger than the views by ``pad`` px on every side
+    (``Y' = Y + 2 pad``): its pixel ``(y, x)`` is the image's ``(y - pad, x - pad)``.
+    """
+    n, n_rows, n_cols = out_weights.shape
+    pad = (n_rows - views.shape[1]) // 2
     for y in prange(n_rows):
         num = np.empty(n_cols * n_ch)
         den = np.empty(n_cols)
         for i in range(n):
             _sample_row(views[i], weights[i if has_weight else 0], has_weight, n_ch, y,
-                        base[i, 0], frac[i, 0], base[i, 1], frac[i, 1], num, den)
+                        base[i, 0] - pad, frac[i, 0], base[i, 1] - pad, frac[i, 1], num, den, 0, n_cols)
             for x in range(n_cols):
                 w = den[x]
                 out_weights[i, y, x] = w

@@ -179,7 +179,7 @@ def _inputs(lf, slope):
     return _kernel_inputs(lf.views(), lf.flat_weights(), slope * lf.flat_positions())
 
 
-def shift_views(lf, slope):
+def shift_views(lf, slope, pad=0):
     """Resample every view of ``lf`` for ``slope`` into a :class:`ShiftedStack`.
 
     Parameters
@@ -189,15 +189,22 @@ def shift_views(lf, slope):
     slope : float
         Disparity of the plane to focus on (pixels per unit of view
         position); view ``i`` is sampled at ``p + slope * positions[i]``.
+    pad : int
+        Also sample ``pad`` px beyond the image on every side (the stack is
+        ``(n, Y + 2 pad, X + 2 pad, C)``, its pixel ``(y, x)`` the image's
+        ``(y - pad, x - pad)``): a view shifted towards the image's edge
+        still holds samples there.
 
     Returns
     -------
     ShiftedStack
     """
     lf, slope = _shift_args(lf, slope)
+    pad = _validate.integer_at_least("pad", pad, 0)
     n = lf.n_views
-    values = np.empty((n,) + lf.image_shape + (lf.n_channels,), np.float32)
-    weights = np.empty((n,) + lf.image_shape, np.float32)
+    shape = (lf.image_shape[0] + 2 * pad, lf.image_shape[1] + 2 * pad)
+    values = np.empty((n,) + shape + (lf.n_channels,), np.float32)
+    weights = np.empty((n,) + shape, np.float32)
     _run("shifted_stack", *_inputs(lf, slope), values, weights)
     return ShiftedStack(values, weights, slope, lf.flat_positions().copy())
 

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
@@ -254,10 +254,15 @@ class SlopeRenderer:
         self.slope = float(slope)
         self.positions = np.ascontiguousarray(lf.flat_positions(), np.float64)
         self.spacing = view_spacing(lf.positions)
-        stack = shift_views(lf, slope)
-        self.stack = replace(stack, values=np.ascontiguousarray(stack.values),
-                             weights=np.ascontiguousarray(stack.weights))
+        self._stacks = {}
         self.naive = refocus(lf, slope) if naive is None else naive
+
+    def stack(self, pad=0):
+        """The views shifted for this slope over the image grown by ``pad`` px on every side
+        (:func:`~napari_lfalias.refocus.shift_views`), made once per ``pad``."""
+        if pad not in self._stacks:
+            self._stacks[pad] = shift_views(self.lf, self.slope, pad)
+        return self._stacks[pad]
 
     def render(self, disparity, confidence=None, *, larger_first=True, max_bins=MAX_BINS, within=None,
                elsewhere=None):
@@ -284,21 +289,27 @@ class SlopeRenderer:
         confidence = np.ascontiguousarray(confidence, np.float32)
         disparity = _with_mixed_edges(disparity, slope, OCCLUSION_GAP_PX / spacing)
         n = self.positions.shape[0]
-        shape = disparity.shape
         # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
         narrow = disparity.astype(np.float32)
         exact = np.array_equal(narrow, disparity)
         plan = _bins(disparity, slope, spacing, max_bins) if bins_of is None else bins_of.bins
         edges, centres, taps = plan
-        warped = narrow if exact else disparity
+        # The layers cover the image and as far beyond it as a blur reaches, where the views hold samples
+        # too: a box cut off at the image's edge averaged only the inner side of a defocused surface. The
+        # disparity is mirrored there, not continued: an estimate's outermost pixels are its least sure.
+        pad = _reach(taps)
+        stack = self.stack(pad)
+        warped = np.pad(narrow if exact else disparity, pad, mode="reflect")
+        shape = warped.shape
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        _run("view_bins", warped, confidence, self.positions, bool(larger_first), slope, edges, bins, sample_conf)
+        _run("view_bins", warped, np.pad(confidence, pad, mode="reflect"), self.positions, bool(larger_first), slope,
+             edges, bins, sample_conf)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        fill, has_fill = _in_focus_colour(self.stack, bins, taps, order, occluders, bins_of if near else None)
-        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first))
+        fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 
     def composite(self, layers, *, within=None, elsewhere=None):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
@@ -308,8 +319,10 @@ class SlopeRenderer:
         if within is not None and not within.any():
             return elsewhere
         slope, spacing = self.slope, self.spacing
-        windows = None if within is None else _windows(within, layers.reach, self.TILE, self.MOST_PARTIAL)
-        num, den, blurred, trust = _composite(self.stack, layers, windows)
+        inner = layers.inner
+        windows = None if within is None else _windows(np.pad(within, layers.reach), layers.reach, self.TILE,
+                                                       self.MOST_PARTIAL)
+        num, den, blurred, trust = (total[inner] for total in _composite(layers, windows))
         seen = den > 1e-6
         image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
         share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
@@ -319,9 +332,10 @@ class SlopeRenderer:
                               share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
         if windows is None:
             return rendering
-        done = np.zeros(den.shape, bool)
+        done = np.zeros(layers.view_bins.shape[1:], bool)
         for _, (y0, y1, x0, x1) in windows:
             done[y0:y1, x0:x1] = True
+        done = done[inner]
         return Rendering(*(np.where(done[..., None] if part.ndim == 3 else done, part, other)
                            for part, other in zip((rendering.image, rendering.blurred_share, rendering.trust),
                                                   (elsewhere.image, elsewhere.blurred_share, elsewhere.trust))))
@@ -337,14 +351,17 @@ class Layers:
         The disparity, occluding edges given to the side sharper at the slope.
     bins : tuple
         The disparity bins: edges ``(K + 1,)``, centres ``(K,)``, box taps ``(K, 4)``.
-    view_bins, view_confidence : ndarray (n, Y, X)
-        The bin (int16, -1: none) and confidence of the surface each view's shifted sample shows.
+    view_bins, view_confidence : ndarray (n, Y + 2 reach, X + 2 reach)
+        The bin (int16, -1: none) and confidence of the surface each view's shifted sample shows, over
+        the image and as far beyond it as the blur reaches (the disparity mirrored at the image's edge).
     order, occluders : ndarray (K,) int64
         The bins front to back; for each, the last position in ``order`` of a bin that hides it.
-    fill, has_fill : ndarray (Y, X, C) float32, (Y, X) bool
+    fill, has_fill : ndarray (Y + 2 reach, X + 2 reach, C) float32, (Y + 2 reach, X + 2 reach) bool
         The in-focus background behind occluders' edges.
     larger_first : bool
         The occlusion order the disparity was warped in.
+    stack : ShiftedStack
+        The views shifted for the slope, over the same grid as ``view_bins``.
     """
 
     disparity: np.ndarray
@@ -356,28 +373,39 @@ class Layers:
     fill: np.ndarray
     has_fill: np.ndarray
     larger_first: bool
+    stack: object
 
     @property
     def reach(self):
         """How far (px) the blur of any bin reaches: a composited pixel depends on the samples this close."""
-        taps = self.bins[2]
-        blurred = np.any(taps != 0, axis=1)
-        if not blurred.any():
-            return 0
-        return int(max(taps[blurred, 0].max(), taps[blurred, 2].max())) + 1
+        return _reach(self.bins[2])
+
+    @property
+    def inner(self):
+        """The image's pixels in the grid of :attr:`view_bins` (slices)."""
+        pad = self.reach
+        return (slice(pad, pad + self.disparity.shape[0]), slice(pad, pad + self.disparity.shape[1]))
 
     def differs_from(self, other):
         """``(Y, X)`` bool: the pixels whose rendering may differ from that of ``other`` (layers with the
         same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
         if self.bins is not other.bins:
             raise ParameterError("Layers.differs_from compares layers with the same bins (layers(bins_of=...))")
-        inputs = np.empty(self.disparity.shape, bool)
+        inputs = np.empty(self.view_bins.shape[1:], bool)
         _run("views_differ", self.view_bins, other.view_bins, self.view_confidence, other.view_confidence, inputs)
         inputs |= self.has_fill != other.has_fill
         inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
         reach = self.reach
         grown = ndimage.maximum_filter(inputs, size=2 * reach + 1) if reach else inputs
-        return grown | (self.disparity != other.disparity)
+        return grown[self.inner] | (self.disparity != other.disparity)
+
+
+def _reach(taps):
+    """How far (px) the widest box of ``taps (K, 4)`` reaches from its centre; 0 where none blurs."""
+    blurred = np.any(taps != 0, axis=1)
+    if not blurred.any():
+        return 0
+    return int(max(taps[blurred, 0].max(), taps[blurred, 2].max())) + 1
 
 
 def _windows(within, margin, tile, most):
@@ -408,11 +436,12 @@ def _windows(within, margin, tile, most):
     return None if area > most * n_rows * n_cols else windows
 
 
-def _composite(stack, layers, windows=None):
+def _composite(layers, windows=None):
     """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X) of :class:`Layers`
     (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with ``windows``
     (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
-    bins, sample_conf, fill, has_fill = layers.view_bins, layers.view_confidence, layers.fill, layers.has_fill
+    stack, bins, sample_conf = layers.stack, layers.view_bins, layers.view_confidence
+    fill, has_fill = layers.fill, layers.has_fill
     order, occluders, taps = layers.order, layers.occluders, layers.bins[2]
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2

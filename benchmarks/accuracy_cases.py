@@ -16,7 +16,10 @@ disparity. Cases are split:
   worst case (stop 21). fresh-d (seeds 600-619) was first run at the start
   of stop 22, before any change (its unseen figures are in the notes of
   results/accuracy.md), then used to find the renderer's disocclusion fill;
-  fresh-e (seeds 700-719) was first run for stop 22's report.
+  fresh-e (seeds 700-719) was first run for stop 22's report. fresh-f
+  (seeds 800-819) was first run at the start of stop 23, before any change,
+  then used to find the renderer's cut boxes at the image's edge; fresh-g
+  (seeds 900-919) was first run for stop 23's report.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -169,7 +172,8 @@ def hci_cases():
 
 #: The seeds of the random scenes of each fresh split.
 FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c": range(500, 520),
-               "fresh-d": range(600, 620), "fresh-e": range(700, 720)}
+               "fresh-d": range(600, 620), "fresh-e": range(700, 720), "fresh-f": range(800, 820),
+               "fresh-g": range(900, 920)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

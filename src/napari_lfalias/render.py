@@ -29,6 +29,14 @@ when not given):
    is seen of it nearby, so its blur reaches under an occluder's outline.
 4. The views' composites are summed and normalised by their coverage.
 
+All of this runs over the image grown by the widest box's reach, with the
+disparity mirrored at the image's edge: a view shifted towards the edge
+holds samples beyond it, and a box cut off there averaged only the inner
+side of its cell (a defocused wall's outer rows had ten times the naive
+refocus's error). A view's own samples still end somewhere; within a
+box's reach of that end its box is one-sided (``tests/test_render.py``
+keeps that case as an expected failure).
+
 Pixels in focus (``|d - slope| * spacing < 0.5`` px) with no defocused
 surface over them are the naive refocus exactly. The renderer is also the
 depth-aware baseline of the paper (:func:`~napari_lfalias.depth_aware_refocus`

@@ -165,7 +165,7 @@ def _cells(member):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, complete_only,
+def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, border_rule,
                 outside_penalty, tiles, first, order, tolerance, within, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
@@ -189,16 +189,16 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         Group membership of every view (group 0: all of them).
     min_count : (G,) float32
         Fewest valid views a group needs to count.
-    complete_only : bool
+    border_rule : bool
         Where some views sample outside the image, a group counts at a
         pixel only if the share of its views that sample inside is the
-        highest of any group there: a slope that pushes a group's outer
-        views out (their differences the largest) cannot win by that.
+        highest of any group there (a slope that pushes a group's outer
+        views out, their differences the largest, cannot win by that), and
+        the pixel's cost is multiplied by ``1 + outside_penalty * (share of
+        all the views outside)`` (of two slopes that fit about equally
+        well, the one more views see wins). Not with ``within``.
     outside_penalty : float32
-        Where some views sample outside the image, the pixel's cost is
-        multiplied by ``1 + outside_penalty * (share of all the views
-        outside)``: of two slopes that fit about equally well, the one
-        more views see wins. Neither applies with ``within``.
+        See ``border_rule``.
     tiles : (T, 4) int64
         ``(y0, y1, x0, x1)`` of every tile.
     first : (T + 1,) int64, order : (S,) int64
@@ -266,7 +266,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                 bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
                 ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
                 covers = ya == y0 and yb == y1 and xa == x0 and xb == x1
-                if not covers and not clipped and not within:
+                if not covers and not clipped and border_rule:
                     clipped = True
                     inside[:] = 0.0
                     for v in range(i):  # the views before covered the tile
@@ -304,7 +304,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                         continue
                     least = min_count[g]
                     for x in range(width):
-                        if clipped and complete_only and share[g, x] < most[x] - np.float32(1e-4):
+                        if clipped and share[g, x] < most[x] - np.float32(1e-4):
                             continue
                         if group_cnt[x] >= least:
                             value = group_acc[x] / group_cnt[x]

@@ -165,8 +165,8 @@ def _cells(member):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, tiles, first, order,
-                tolerance, within, view_scale, out):
+def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, border_rule,
+                outside_penalty, tiles, first, order, tolerance, within, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
     Tile-major: a tile's views are read into the cache once and all its
@@ -186,9 +186,19 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     ref_views : (r,) int64
         Views averaged into the reference (the central ones).
     member : (n, G) bool
-        Group membership of every view.
+        Group membership of every view (group 0: all of them).
     min_count : (G,) float32
         Fewest valid views a group needs to count.
+    border_rule : bool
+        Where some views sample outside the image, a group counts at a
+        pixel only if the share of its views that sample inside is the
+        highest of any group there (a slope that pushes a group's outer
+        views out, their differences the largest, cannot win by that), and
+        the pixel's cost is multiplied by ``1 + outside_penalty * (share of
+        all the views outside)`` (of two slopes that fit about equally
+        well, the one more views see wins). Not with ``within``.
+    outside_penalty : float32
+        See ``border_rule``.
     tiles : (T, 4) int64
         ``(y0, y1, x0, x1)`` of every tile.
     first : (T + 1,) int64, order : (S,) int64
@@ -212,6 +222,11 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     n_groups = member.shape[1]
     view_cell, group_cells, group_size, n_cells = _cells(member)
     view_cells = [view_cell[i:i + 1] for i in range(n)]
+    group_views = np.zeros(n_groups, np.float32)
+    for i in range(n):
+        for g in range(n_groups):
+            if member[i, g]:
+                group_views[g] += 1.0
     for t in prange(tiles.shape[0]):
         y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
         height, width = y1 - y0, x1 - x0
@@ -222,6 +237,9 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         group_acc = np.empty(width, np.float32)
         group_cnt = np.empty(width, np.float32)
         best = np.empty(width, np.float32)
+        inside = np.empty((n_cells, height, width), np.float32)  # views sampling inside, where some do not
+        share = np.empty((n_groups, width), np.float32)  # of a group's views, those sampling inside
+        most = np.empty(width, np.float32)
         for idx in range(first[t], first[t + 1]):
             j = order[idx]
             s = slopes[j]
@@ -242,16 +260,34 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                     inv = np.float32(1.0) / ref_count[r, x] if ref_count[r, x] > 0.0 else np.float32(0.0)
                     for k in range(n_feat):
                         ref[r, k, x] *= inv
+            clipped = False  # some view samples outside the image in this tile
             for i in range(n):
                 by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
                 bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
                 ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
+                covers = ya == y0 and yb == y1 and xa == x0 and xb == x1
+                if not covers and not clipped and border_rule:
+                    clipped = True
+                    inside[:] = 0.0
+                    for v in range(i):  # the views before covered the tile
+                        inside[view_cell[v]] += 1.0
+                if clipped:
+                    inside[view_cell[i], max(ya - y0, 0):max(yb - y0, 0), max(xa - x0, 0):max(xb - x0, 0)] += 1.0
                 if yb <= ya or xb <= xa:
                     continue
                 _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
                             ref_count, view_cells[i], acc, cnt, tolerance, within, view_scale[j, i])
             for r in range(height):
                 best[:] = np.inf
+                if clipped:
+                    most[:] = 0.0
+                    for g in range(n_groups):
+                        share[g] = 0.0
+                        for k in range(group_size[g]):
+                            share[g] += inside[group_cells[g, k], r]
+                        share[g] /= group_views[g]
+                        for x in range(width):
+                            most[x] = max(most[x], share[g, x])
                 for g in range(n_groups):
                     # a group's sums are those of its cells
                     group_acc[:] = 0.0
@@ -268,10 +304,15 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                         continue
                     least = min_count[g]
                     for x in range(width):
+                        if clipped and share[g, x] < most[x] - np.float32(1e-4):
+                            continue
                         if group_cnt[x] >= least:
                             value = group_acc[x] / group_cnt[x]
                             if value < best[x]:
                                 best[x] = value
+                if clipped:
+                    for x in range(width):
+                        best[x] *= np.float32(1.0) + outside_penalty * (np.float32(1.0) - share[0, x])
                 out[j, y0 + r, x0:x1] = best
 
 

@@ -392,7 +392,7 @@ class DepthGuide:
         if self._focus_test is None:
             from .disparity import FocusTest
 
-            self._focus_test = FocusTest(self.lf, self._luminance_lf.views()[..., 0])
+            self._focus_test = FocusTest(self.lf, self._luminance_lf)
         return self._focus_test
 
     @property

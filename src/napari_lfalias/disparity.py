@@ -220,25 +220,12 @@ def _run(name, *args):
 
 # -- inputs ------------------------------------------------------------------------------
 
-def view_luminance(lf):
-    """The luminance ``(n, Y, X)`` of ``lf``'s views (Rec. 709 of colour data; the data of one channel, as
-    they are).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from napari_lfalias import LightField
-    >>> view_luminance(LightField(np.ones((2, 2, 3, 3, 3), np.float32))).shape
-    (4, 3, 3)
-    """
-    return lf.luminance().views()[..., 0]
-
-
 def _luminance_views(lf, luminance=None):
     """Luminance ``(n, Y, X)`` float32 scaled so the bright level is 1, and the sample weights ``(n, Y, X)``
-    relative to the largest at each pixel, or None. ``luminance``: :func:`view_luminance` of ``lf``, where
-    already made (it is not changed)."""
-    lum = np.asarray(view_luminance(lf) if luminance is None else luminance, np.float32)  # scaled into a copy below
+    relative to the largest at each pixel, or None. ``luminance``: ``lf.luminance()``
+    (:meth:`~napari_lfalias.LightField.luminance`), where already made (it is not changed)."""
+    luminance = lf.luminance() if luminance is None else luminance
+    lum = np.asarray(luminance.views()[..., 0], np.float32)  # scaled into a copy below
     weights = lf.flat_weights()
     valid = None
     if weights is not None:
@@ -881,8 +868,8 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
         c_step = step * 2 ** level
         c_slopes = _slope_grid(low, high, c_step)
         c_shape = small.shape[1:]
-        # complete groups only here: a half-aperture pushed half out by a slope a period off fits a periodic
-        # texture near the border; at full resolution the same rule costs HCI antinous's edges
+        # the border rule only here (it sets each tile's slopes): at full resolution its complete groups cost
+        # HCI antinous's edges and its penalty moved an in-focus plane's outermost pixels (OUTSIDE_PENALTY)
         cost = _sweep(_features(small), small_valid, positions, c_slopes / 2 ** level,
                       _all_tiles(len(c_slopes), c_shape, TILE), c_shape, TILE, border_rule=True)
         c_guide, _ = _reduce_views(np.moveaxis(guide, -1, 0).copy(), None, level)
@@ -962,8 +949,8 @@ class FocusTest:
     ----------
     lf : LightField
         The light field (its luminance features are made once and kept).
-    luminance : ndarray (n, Y, X), optional
-        :func:`view_luminance` of ``lf``, where already made.
+    luminance : LightField, optional
+        ``lf.luminance()``, where already made.
 
     The test is conservative: a view resampled between pixels differs from
     the centre by its interpolation error, so on a textured plane in focus

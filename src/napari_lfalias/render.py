@@ -463,11 +463,12 @@ def _composite(layers, windows=None):
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
+    # every view over the whole grid, for the stand-ins of the samples a view lacks (_render_kernels._stand_in)
     positions = np.ascontiguousarray(stack.positions, np.float64)
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
-    others = np.argsort(apart, axis=1, kind="stable")[:, 1:]
-    views = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
-             np.ascontiguousarray(others))
+    nearest_first = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+    whole_grid = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
+                  nearest_first)
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         part = (slice(y0, y1), slice(x0, x1))
         every = (slice(None),) + part
@@ -477,7 +478,7 @@ def _composite(layers, windows=None):
         _run("composite_views", *(np.ascontiguousarray(a[every]) for a in (stack.values, stack.weights, bins,
                                                                              sample_conf)),
              order, occluders, taps, np.ascontiguousarray(fill[part]), np.ascontiguousarray(has_fill[part]),
-             views, np.array([y0, x0], np.int64), chunks, num, den, blurred, trust)
+             whole_grid, np.array([y0, x0], np.int64), chunks, num, den, blurred, trust)
         inner = (slice(i0 - y0, i1 - y0), slice(j0 - x0, j1 - x0))
         for total, chunked in zip(sums, (num, den, blurred, trust)):
             total[i0:i1, j0:j1] = chunked.sum(0)[inner]

@@ -200,7 +200,7 @@ def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_co
     out_confidence[y] = 0.0
     if sy < 0 or sy >= warped_bins.shape[0]:
         return
-    for x in range(n_cols):
+    for x in range(out_bins.shape[1]):
         sx = columns[x]
         if sx < 0 or sx >= n_cols:
             continue
@@ -213,17 +213,17 @@ def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_co
 
 @njit(cache=True)
 def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, out_bins, out_confidence):
-    """The bin ``(Y, X)`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
+    """The bin ``(Y', X')`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
     warped bins ``warped_bins``; -1 outside the view), and its confidence."""
     n_rows, n_cols = warped_bins.shape
     if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
         out_bins[:] = -1
         out_confidence[:] = 0.0
         return
-    columns = np.empty(n_cols, np.int64)
-    for x in range(n_cols):
+    columns = np.empty(out_bins.shape[1], np.int64)
+    for x in range(out_bins.shape[1]):
         columns[x] = int(np.floor(x + dx + 0.5))
-    for y in range(n_rows):
+    for y in range(out_bins.shape[0]):
         _sample_row(warped_bins, warped_confidence, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
                     out_confidence)
 
@@ -238,17 +238,20 @@ def _warp_scratch(disparity):
 
 @njit(cache=True, parallel=True)
 def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
-    """For every view at ``positions (n, 2)``, the bin ``(n, Y, X)`` int16 of the surface its sample at
+    """For every view at ``positions (n, 2)``, the bin ``(n, Y', X')`` int16 of the surface its sample at
     ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
     forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
-    shift (:func:`_shifted_bins_view`); views in parallel."""
+    shift (:func:`_shifted_bins_view`); views in parallel. The disparity may reach ``e`` px further than
+    the output on every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
     source_bins = _source_bins(disparity, edges)
+    extra = (disparity.shape[0] - out_bins.shape[1]) // 2
     for i in prange(positions.shape[0]):
         warped, warped_confidence, warped_bins, filled = _warp_scratch(disparity)
         q_y, q_x = positions[i, 0], positions[i, 1]
         _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
                    filled)
-        _shifted_bins_view(warped_bins, warped_confidence, slope * q_y, slope * q_x, out_bins[i], out_confidence[i])
+        _shifted_bins_view(warped_bins, warped_confidence, slope * q_y + extra, slope * q_x + extra, out_bins[i],
+                           out_confidence[i])
 
 
 @njit(cache=True, parallel=True)
@@ -326,7 +329,8 @@ def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, o
 
 @njit(cache=True)
 def _bin_boxes(bins, weights, n_bins):
-    """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples."""
+    """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples
+    (those of weight > 0; all of them where ``weights`` is None)."""
     n_rows, n_cols = bins.shape
     boxes = np.empty((n_bins, 4), np.int64)
     boxes[:, 0] = n_rows
@@ -336,7 +340,7 @@ def _bin_boxes(bins, weights, n_bins):
     for y in range(n_rows):
         for x in range(n_cols):
             k = bins[y, x]
-            if k < 0 or weights[y, x] <= 0.0:
+            if k < 0 or (weights is not None and weights[y, x] <= 0.0):
                 continue
             boxes[k, 0] = min(boxes[k, 0], y)
             boxes[k, 1] = max(boxes[k, 1], y)
@@ -357,8 +361,38 @@ def _accumulate(num, den, blurred, trust, y, x, t, colour, visible, confidence, 
 
 
 @njit(cache=True)
+def _stand_in(stack_values, stack_weights, stack_bins, others, i, k, r, positions, y, x, colour):
+    """Whether another view shows the surface of bin ``k`` where view ``i`` lacks its sample at ``(y, x)``
+    (of the whole grid); if so, its colour (bilinear; all four taps of that view hold a sample of that bin)
+    into ``colour``.
+
+    A point the view would show at ``p`` lies in view ``j``'s shifted samples at ``p + r (q_j - q_i)``
+    (``r``: the surface's disparity less the slope); ``others``: the other views, nearest ``i`` first."""
+    n_rows, n_cols = stack_bins.shape[1], stack_bins.shape[2]
+    for j in others:
+        sy = y + r * (positions[j, 0] - positions[i, 0])
+        sx = x + r * (positions[j, 1] - positions[i, 1])
+        y0, x0 = int(np.floor(sy)), int(np.floor(sx))
+        if y0 < 0 or x0 < 0 or y0 + 1 >= n_rows or x0 + 1 >= n_cols:
+            continue
+        whole = True
+        for yy in range(y0, y0 + 2):
+            for xx in range(x0, x0 + 2):
+                if not (stack_weights[j, yy, xx] > 0.0 and stack_bins[j, yy, xx] == k):
+                    whole = False
+        if not whole:
+            continue
+        fy, fx = sy - y0, sx - x0
+        for c in range(colour.shape[0]):
+            colour[c] = ((1.0 - fy) * ((1.0 - fx) * stack_values[j, y0, x0, c] + fx * stack_values[j, y0, x0 + 1, c])
+                         + fy * ((1.0 - fx) * stack_values[j, y0 + 1, x0, c] + fx * stack_values[j, y0 + 1, x0 + 1, c]))
+        return True
+    return False
+
+
+@njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
-                    trust, covers, seen, scratch):
+                    trust, covers, seen, scratch, whole, i, origin):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -370,8 +404,11 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     blurred bin in this view, the hidden surface goes on behind it with
     the colour of what is seen of it nearby: its blur reaches under the
     occluder, which is what the rays between the views see there (left out,
-    the occluder's colour took the gap: a halo along its outline). Layers
-    hold unit coverage; the view's cell at a pixel counts by the weight of
+    the occluder's colour took the gap: a halo along its outline). Where
+    the view has no sample (beyond its field, near the image's edge), a
+    blurred bin takes what another view shows of its surface there
+    (:func:`_stand_in`) into its box: cut off there, the box averaged
+    only one side of the cell. Layers hold unit coverage; the view's cell at a pixel counts by the weight of
     the view's sample there. A bin in focus (no blur) is its samples as
     they are: it is added without a layer.
 
@@ -380,11 +417,16 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     of the cell the bins composited so far leave free, brought up to
     ``occluders[o]`` as ``o`` advances (``occluders`` never decreases along
     ``order``), and a blurred bin's layer, its box sum and the box's
-    intermediate pass.
+    intermediate pass. ``whole``: ``(values, weights, bins, positions,
+    residual, others)`` of every view over the whole grid, the bins'
+    disparities less the slope ``(K,)`` and each view's others nearest
+    first ``(n, n - 1)``, for the stand-ins; ``i``: this view; ``origin``:
+    where this window's ``(0, 0)`` lies in the whole grid.
     """
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
-    boxes = _bin_boxes(bins, weights, taps.shape[0])
+    all_values, all_weights, all_bins, positions, residual, others = whole
+    boxes = _bin_boxes(bins, None, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
         rank[order[o]] = o
@@ -428,11 +470,16 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
-                if bins[y, x] == k and weights[y, x] > 0.0:
+                if bins[y, x] != k:
+                    continue
+                if weights[y, x] > 0.0:
                     for c in range(n_ch):
                         layer[y - y0, x - x0, c] = values[y, x, c]
-                    layer[y - y0, x - x0, n_ch] = 1.0
-                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
+                elif not _stand_in(all_values, all_weights, all_bins, others[i], i, k, residual[k], positions,
+                                   y + origin[0], x + origin[1], layer[y - y0, x - x0, :n_ch]):
+                    continue
+                layer[y - y0, x - x0, n_ch] = 1.0
+                layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
@@ -474,8 +521,8 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
 
 
 @njit(cache=True, parallel=True)
-def composite_views(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, n_chunks, num, den,
-                    blurred, trust):
+def composite_views(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, whole, origin,
+                    n_chunks, num, den, blurred, trust):
     """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
     the coverage of blurred bins ``blurred`` and the confidence-weighted coverage ``trust``
     (each ``(n_chunks, Y, X)``), one chunk of views per thread.
@@ -483,7 +530,9 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
     ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
     :func:`napari_lfalias.baselines._box_taps`); ``order``: bins front to back; ``occluders``: for each
     position in ``order``, the last position whose bins hide it (-1: none); ``fill (Y, X, C)`` and
-    ``has_fill (Y, X)``: the in-focus surface behind occluders' edges (see :func:`_composite_view`).
+    ``has_fill (Y, X)``: the in-focus surface behind occluders' edges; ``whole``, ``origin``: the views
+    over the whole grid and where this window lies in it, for the stand-ins of samples a view lacks (see
+    :func:`_composite_view`).
     """
     n, n_rows, n_cols = bins.shape
     for chunk in prange(n_chunks):
@@ -492,4 +541,5 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
         scratch = np.empty((3, n_rows * n_cols * (values.shape[3] + 3)), np.float32)
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
-                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch)
+                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch, whole, i,
+                            origin)

@@ -307,12 +307,14 @@ class SlopeRenderer:
         # disparity is mirrored there, not continued: an estimate's outermost pixels are its least sure.
         pad = _reach(taps)
         stack = self.stack(pad)
-        warped = np.pad(narrow if exact else disparity, pad, mode="reflect")
-        shape = warped.shape
+        # warped from further out, so that a view's samples beyond its own field have a surface too (their
+        # boxes take another view's sample of it)
+        extra = int(math.ceil(abs(slope) * np.abs(self.positions).max())) + 1
+        shape = stack.weights.shape[1:]
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
-        _run("view_bins", warped, np.pad(confidence, pad, mode="reflect"), self.positions, bool(larger_first), slope,
-             edges, bins, sample_conf)
+        _run("view_bins", _beyond(narrow if exact else disparity, pad, extra), _beyond(confidence, pad, extra),
+             self.positions, bool(larger_first), slope, edges, bins, sample_conf)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
@@ -408,6 +410,13 @@ class Layers:
         return grown[self.inner] | (self.disparity != other.disparity)
 
 
+def _beyond(image, pad, extra):
+    """``image`` grown by ``pad + extra`` px on every side: mirrored over ``pad`` (the outermost pixels of
+    an estimate are its least sure), then continued (a mirror reaching further would bring surfaces from
+    inside the image out to where they are not)."""
+    return np.pad(np.pad(image, pad, mode="reflect"), extra, mode="edge")
+
+
 def _reach(taps):
     """How far (px) the widest box of ``taps (K, 4)`` reaches from its centre; 0 where none blurs."""
     blurred = np.any(taps != 0, axis=1)
@@ -454,6 +463,12 @@ def _composite(layers, windows=None):
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
+    # every view over the whole grid, for the stand-ins of the samples a view lacks (_render_kernels._stand_in)
+    positions = np.ascontiguousarray(stack.positions, np.float64)
+    apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
+    nearest_first = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+    whole_grid = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
+                  nearest_first)
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         part = (slice(y0, y1), slice(x0, x1))
         every = (slice(None),) + part
@@ -463,7 +478,7 @@ def _composite(layers, windows=None):
         _run("composite_views", *(np.ascontiguousarray(a[every]) for a in (stack.values, stack.weights, bins,
                                                                              sample_conf)),
              order, occluders, taps, np.ascontiguousarray(fill[part]), np.ascontiguousarray(has_fill[part]),
-             chunks, num, den, blurred, trust)
+             whole_grid, np.array([y0, x0], np.int64), chunks, num, den, blurred, trust)
         inner = (slice(i0 - y0, i1 - y0), slice(j0 - x0, j1 - x0))
         for total, chunked in zip(sums, (num, den, blurred, trust)):
             total[i0:i1, j0:j1] = chunked.sum(0)[inner]

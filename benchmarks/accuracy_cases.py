@@ -19,7 +19,10 @@ disparity. Cases are split:
   fresh-e (seeds 700-719) was first run for stop 22's report. fresh-f
   (seeds 800-819) was first run at the start of stop 23, before any change,
   then used to find the renderer's cut boxes at the image's edge; fresh-g
-  (seeds 900-919) was first run for stop 23's report.
+  (seeds 900-919) was first run for stop 23's report. fresh-h (seeds
+  1000-1019) was first run at the start of stop 24, before any change, and
+  then chose the stand-ins of the renderer; fresh-i (seeds 1100-1119) was
+  first run for stop 24's report.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -173,7 +176,7 @@ def hci_cases():
 #: The seeds of the random scenes of each fresh split.
 FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c": range(500, 520),
                "fresh-d": range(600, 620), "fresh-e": range(700, 720), "fresh-f": range(800, 820),
-               "fresh-g": range(900, 920)}
+               "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -270,6 +270,20 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
         return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
+    def scored_rendering(self, slope):
+        """The :meth:`rendering` at ``slope`` where :meth:`scores` and a reduction read it (kept per slope).
+
+        That is within :meth:`_score_reach` of every pixel whose views
+        disagree: elsewhere the score is 0 whatever the rendering says, and
+        the reduction replaces only pixels with a score (and a soft edge of
+        3 px, within that reach). There it equals the :meth:`rendering` to
+        float rounding (:meth:`~napari_lfalias.render.SlopeRenderer.render`
+        with ``within``); elsewhere it holds the naive refocus, with no
+        trust. The :meth:`rendering` itself where it is made already.
+        """
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "scored rendering", lambda: self._in_data_units(self._raw_scored_rendering(slope)))
+
     def edge_renderings(self, slope):
         """The rendered images at ``slope`` with the depth edges of the disparity the :meth:`rendering` uses
         (the estimate, with what the views show in focus at ``slope``) moved :data:`EDGE_TOLERANCE_PX`
@@ -283,10 +297,10 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            rendering = self._raw_rendering(slope)
+            rendering = self._raw_scored_rendering(slope)
             used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * self._score_reach(slope) + 1)
             if not used.any():
-                return [self.rendering(slope).image] * 2
+                return [self.scored_rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
             images = []
             for moved in moved_edges(self._rendered_disparity(slope), renderer.spacing):
@@ -310,7 +324,7 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            rendered = self.rendering(slope).image
+            rendered = self.scored_rendering(slope).image
             spread = np.zeros(self.lf.image_shape, np.float32)
             for image in self.edge_renderings(slope):
                 if image is not rendered:
@@ -327,6 +341,19 @@ class DepthGuide:
 
     def _raw_rendering(self, slope):
         return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))
+
+    def _raw_scored_rendering(self, slope):
+        from .render import Rendering
+
+        def make():
+            if "raw rendering" in self._at_slope:
+                return self._at_slope["raw rendering"]
+            read = ndimage.maximum_filter(~self._agree(slope), size=2 * self._score_reach(slope) + 1)
+            renderer, shape = self._renderer(slope), self.lf.image_shape
+            naive = Rendering(renderer.naive, np.zeros(shape, np.float32), np.zeros(shape, np.float32))
+            return renderer.composite(self._layers(slope), within=read, elsewhere=naive)
+
+        return self._kept(slope, "raw scored rendering", make)
 
     def _layers(self, slope):
         """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
@@ -422,7 +449,7 @@ class DepthGuide:
     def _scored_zero(self, slope):
         """Where :meth:`scores` is 0 whatever the renderings say: the views agree, or the rendering is
         not trusted."""
-        return self._agree(slope) | (self.rendering(slope).trust < MIN_TRUST)
+        return self._agree(slope) | (self.scored_rendering(slope).trust < MIN_TRUST)
 
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its
@@ -433,7 +460,7 @@ class DepthGuide:
             return np.zeros(self.lf.image_shape, np.float32)
         windows = self._consistency_windows(slope)
         naive_means = windows.means(naive)
-        score = predicted_error(naive, windows.with_mean_of(naive_means, self.rendering(slope).image))
+        score = predicted_error(naive, windows.with_mean_of(naive_means, self.scored_rendering(slope).image))
         for image in self.edge_renderings(slope):
             np.minimum(score, predicted_error(naive, windows.with_mean_of(naive_means, image)), out=score)
         score[self._scored_zero(slope)] = 0.0

@@ -324,18 +324,17 @@ def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, o
     least = np.float32(1e-6)
     for y in prange(n_rows):
         colour = np.zeros(values.shape[3], np.float32)
+        differs = np.zeros(n_cols, np.bool_)
+        for i in range(n):  # view by view: each view's row read in one pass
+            for x in range(n_cols):
+                differs[x] |= bins[i, y, x] != other_bins[i, y, x]
         for x in range(n_cols):
-            same = True
-            for i in range(n):
-                if bins[i, y, x] != other_bins[i, y, x]:
-                    same = False
-                    break
-            if same:
-                out_has_fill[y, x] = other_has_fill[y, x]
-                out_fill[y, x] = other_fill[y, x]
-            else:
+            if differs[x]:
                 _in_focus_colour_at(values, weights, bins, shows, share, least, y, x, colour, out_fill,
                                     out_has_fill)
+            else:
+                out_has_fill[y, x] = other_has_fill[y, x]
+                out_fill[y, x] = other_fill[y, x]
 
 
 @njit(cache=True)

@@ -49,6 +49,8 @@ STAGES = [
     ("depth_guided", "_Windows.with_mean_of", "window means"),
     ("depth_guided", "moved_edges", "moved edges"),
     ("depth_guided", "predicted_error", "predicted error"),
+    ("metrics", "_blurred_luminance", "predicted error"),
+    ("metrics", "_relative_difference", "predicted error"),
     ("depth_guided", "DepthGuide.scores", "scores (arithmetic)"),
     ("depth_guided", "DepthGuide.edge_renderings", "edge renderings (setup)"),
     ("render", "shift_views", "shifted views"),

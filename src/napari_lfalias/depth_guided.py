@@ -324,11 +324,15 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
+            from .metrics import _blurred_luminance, _relative_difference
+
             rendered = self.scored_rendering(slope).image
             spread = np.zeros(self.lf.image_shape, np.float32)
+            reference = None  # predicted_error's blurred luminance of the rendering, made once
             for image in self.edge_renderings(slope):
                 if image is not rendered:
-                    np.maximum(spread, predicted_error(image, rendered), out=spread)
+                    reference = _blurred_luminance(rendered) if reference is None else reference
+                    np.maximum(spread, _relative_difference(_blurred_luminance(image), reference), out=spread)
             return spread
 
         return self._kept(slope, "edge spread", make)
@@ -458,11 +462,18 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
         if self._agree(slope).all():
             return np.zeros(self.lf.image_shape, np.float32)
+        from .metrics import _blurred_luminance, _relative_difference
+
         windows = self._consistency_windows(slope)
         naive_means = windows.means(naive)
-        score = predicted_error(naive, windows.with_mean_of(naive_means, self.scored_rendering(slope).image))
+        seen = _blurred_luminance(naive)  # predicted_error's, made once for the three renderings
+
+        def error(image):
+            return _relative_difference(seen, _blurred_luminance(windows.with_mean_of(naive_means, image)))
+
+        score = error(self.scored_rendering(slope).image)
         for image in self.edge_renderings(slope):
-            np.minimum(score, predicted_error(naive, windows.with_mean_of(naive_means, image)), out=score)
+            np.minimum(score, error(image), out=score)
         score[self._scored_zero(slope)] = 0.0
         return score
 

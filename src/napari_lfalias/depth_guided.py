@@ -276,10 +276,12 @@ class DepthGuide:
         That is within :meth:`_score_reach` of every pixel whose views
         disagree: elsewhere the score is 0 whatever the rendering says, and
         the reduction replaces only pixels with a score (and a soft edge of
-        3 px, within that reach). There it equals the :meth:`rendering` to
-        float rounding (:meth:`~napari_lfalias.render.SlopeRenderer.render`
-        with ``within``); elsewhere it holds the naive refocus, with no
-        trust. The :meth:`rendering` itself where it is made already.
+        3 px, within that reach). There it is the rendering's layers
+        composited on the tiles around those pixels, as the
+        :meth:`edge_renderings` are (:meth:`~napari_lfalias.render.SlopeRenderer.composite`
+        with ``within``; the whole image where the tiles would cover most of
+        it); elsewhere it holds the naive refocus, with no trust. The
+        :meth:`rendering` itself where it is made already.
         """
         slope = _validate.finite_float("slope", slope)
         return self._kept(slope, "scored rendering", lambda: self._in_data_units(self._raw_scored_rendering(slope)))

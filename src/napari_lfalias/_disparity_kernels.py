@@ -18,8 +18,33 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
+__all__ = ["feature_planes", "sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
            "unshear_min", "winner_scan", "relative_costs"]
+
+
+@njit(cache=True, parallel=True)
+def feature_planes(lum, weight, out):
+    """``out (n, 3, Y, X)`` float32: the luminance ``lum (n, Y, X)`` and its central differences down the
+    columns and along the rows times ``weight`` (float32, 0 on the first and last row or column); rows of
+    every view in parallel, each page written once."""
+    n, n_rows, n_cols = lum.shape
+    for job in prange(n * n_rows):
+        i, y = job // n_rows, job % n_rows
+        row = lum[i, y]
+        out[i, 0, y] = row
+        down, along = out[i, 1, y], out[i, 2, y]
+        if 0 < y < n_rows - 1:
+            above, below = lum[i, y - 1], lum[i, y + 1]
+            for x in range(n_cols):
+                down[x] = (below[x] - above[x]) * weight
+        else:
+            down[:] = 0.0
+        if n_cols == 0:
+            continue
+        along[0] = 0.0
+        along[n_cols - 1] = 0.0
+        for x in range(1, n_cols - 1):
+            along[x] = (row[x + 1] - row[x - 1]) * weight
 
 
 @njit(cache=True, inline="always")

@@ -282,6 +282,22 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
         return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
+    def scored_rendering(self, slope):
+        """The :meth:`rendering` at ``slope`` where :meth:`scores` and a reduction read it (kept per slope).
+
+        That is within :meth:`_score_reach` of every pixel whose views
+        disagree: elsewhere the score is 0 whatever the rendering says, and
+        the reduction replaces only pixels with a score (and a soft edge of
+        3 px, within that reach). There it is the rendering's layers
+        composited on the tiles around those pixels, as the
+        :meth:`edge_renderings` are (:meth:`~napari_lfalias.render.SlopeRenderer.composite`
+        with ``within``; the whole image where the tiles would cover most of
+        it); elsewhere it holds the naive refocus, with no trust. The
+        :meth:`rendering` itself where it is made already.
+        """
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "scored rendering", lambda: self._in_data_units(self._raw_scored_rendering(slope)))
+
     def edge_renderings(self, slope):
         """The rendered images at ``slope`` with the depth edges of the disparity the :meth:`rendering` uses
         (the estimate, with what the views show in focus at ``slope``) moved :data:`EDGE_TOLERANCE_PX`
@@ -295,10 +311,10 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            rendering = self._raw_rendering(slope)
+            rendering = self._raw_scored_rendering(slope)
             used = ndimage.maximum_filter(~self._scored_zero(slope), size=2 * self._score_reach(slope) + 1)
             if not used.any():
-                return [self.rendering(slope).image] * 2
+                return [self.scored_rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
             images = []
             for moved in moved_edges(self._rendered_disparity(slope), renderer.spacing):
@@ -322,11 +338,15 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            rendered = self.rendering(slope).image
+            from .metrics import _blurred_luminance, _relative_difference
+
+            rendered = self.scored_rendering(slope).image
             spread = np.zeros(self.lf.image_shape, np.float32)
+            reference = None  # predicted_error's blurred luminance of the rendering, made once
             for image in self.edge_renderings(slope):
                 if image is not rendered:
-                    np.maximum(spread, predicted_error(image, rendered), out=spread)
+                    reference = _blurred_luminance(rendered) if reference is None else reference
+                    np.maximum(spread, _relative_difference(_blurred_luminance(image), reference), out=spread)
             return spread
 
         return self._kept(slope, "edge spread", make)
@@ -339,6 +359,19 @@ class DepthGuide:
 
     def _raw_rendering(self, slope):
         return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))
+
+    def _raw_scored_rendering(self, slope):
+        from .render import Rendering
+
+        def make():
+            if "raw rendering" in self._at_slope:
+                return self._at_slope["raw rendering"]
+            read = ndimage.maximum_filter(~self._agree(slope), size=2 * self._score_reach(slope) + 1)
+            renderer, shape = self._renderer(slope), self.lf.image_shape
+            naive = Rendering(renderer.naive, np.zeros(shape, np.float32), np.zeros(shape, np.float32))
+            return renderer.composite(self._layers(slope), within=read, elsewhere=naive)
+
+        return self._kept(slope, "raw scored rendering", make)
 
     def _layers(self, slope):
         """The :class:`~napari_lfalias.render.Layers` of the estimate at ``slope`` (kept per slope)."""
@@ -469,7 +502,7 @@ class DepthGuide:
     def _scored_zero(self, slope):
         """Where :meth:`scores` is 0 whatever the renderings say: the views agree, or the rendering is
         not trusted."""
-        return self._agree(slope) | (self.rendering(slope).trust < MIN_TRUST)
+        return self._agree(slope) | (self.scored_rendering(slope).trust < MIN_TRUST)
 
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its
@@ -478,11 +511,18 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
         if self._agree(slope).all():
             return np.zeros(self.lf.image_shape, np.float32)
+        from .metrics import _blurred_luminance, _relative_difference
+
         windows = self._consistency_windows(slope)
         naive_means = windows.means(naive)
-        score = predicted_error(naive, windows.with_mean_of(naive_means, self.rendering(slope).image))
+        seen = _blurred_luminance(naive)  # predicted_error's, made once for the three renderings
+
+        def error(image):
+            return _relative_difference(seen, _blurred_luminance(windows.with_mean_of(naive_means, image)))
+
+        score = error(self.scored_rendering(slope).image)
         for image in self.edge_renderings(slope):
-            np.minimum(score, predicted_error(naive, windows.with_mean_of(naive_means, image)), out=score)
+            np.minimum(score, error(image), out=score)
         score[self._scored_zero(slope)] = 0.0
         return score
 

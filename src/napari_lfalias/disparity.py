@@ -260,17 +260,9 @@ def _bright_level(values, valid=None, samples=1 << 20):
 
 def _features(lum):
     """Planes ``(n, 3, Y, X)`` float32: luminance and its central-difference gradients (weighted)."""
-    n, height, width = lum.shape
-    out = np.zeros((n, 3, height, width), np.float32)
-    out[:, 0] = lum
-    weight = np.float32(GRADIENT_WEIGHT / 2.0)
-    # differences written in place: the stack is large
-    if height > 2:
-        np.subtract(lum[:, 2:], lum[:, :-2], out=out[:, 1, 1:-1])
-        out[:, 1, 1:-1] *= weight
-    if width > 2:
-        np.subtract(lum[:, :, 2:], lum[:, :, :-2], out=out[:, 2, :, 1:-1])
-        out[:, 2, :, 1:-1] *= weight
+    lum = np.ascontiguousarray(lum, np.float32)
+    out = np.empty((lum.shape[0], 3) + lum.shape[1:], np.float32)
+    _run("feature_planes", lum, np.float32(GRADIENT_WEIGHT / 2.0), out)
     return out
 
 

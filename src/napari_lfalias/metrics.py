@@ -385,11 +385,20 @@ def luminance_difference(image, reference, sigma=TRUTH_BLUR, floor=TRUTH_FLOOR):
     0.02
     """
     image, reference = _image_pair(image, reference)
-    a, b = _luminance(image), _luminance(reference)
-    if sigma > 0:
-        a, b = ndimage.gaussian_filter(a, sigma), ndimage.gaussian_filter(b, sigma)
-    bottom = max(float(floor) * float(b.max(initial=0.0)), float(np.finfo(np.float32).tiny))
-    return (np.abs(a - b) / np.maximum(b, bottom)).astype(np.float32)
+    return _relative_difference(_blurred_luminance(image, sigma), _blurred_luminance(reference, sigma), floor)
+
+
+def _blurred_luminance(image, sigma=TRUTH_BLUR):
+    """``G*L(image)`` of :func:`luminance_difference`, for a checked ``(Y, X, C)`` image (one that several
+    differences share is made once)."""
+    luminance = _luminance(image)
+    return ndimage.gaussian_filter(luminance, sigma) if sigma > 0 else luminance
+
+
+def _relative_difference(blurred, blurred_reference, floor=TRUTH_FLOOR):
+    """:func:`luminance_difference` of two :func:`_blurred_luminance` images."""
+    bottom = max(float(floor) * float(blurred_reference.max(initial=0.0)), float(np.finfo(np.float32).tiny))
+    return (np.abs(blurred - blurred_reference) / np.maximum(blurred_reference, bottom)).astype(np.float32)
 
 
 def aliased_pixels(naive, reference, tolerance=PERCEPTIBLE):

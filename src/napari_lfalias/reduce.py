@@ -367,7 +367,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     replaced = _with_fringe(detection, guide, slope)
     if replaced.any():
         weight = guide.blend_weight(replaced)
-        image = guide.blend(refocused, guide.rendering(slope).image, replaced, weight)
+        image = guide.blend(refocused, guide.scored_rendering(slope).image, replaced, weight)
         changed = weight > 0
     else:
         image, changed = refocused.copy(), replaced

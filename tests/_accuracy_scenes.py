@@ -32,19 +32,23 @@ def distance_from_depth_edges(disparity):
     return ndimage.distance_transform_edt(~edge)
 
 
-def slanted_plane(n_views=5, size=160, slant=(0.08, 0.0), offset=0.3, contrast=0.1, noise=0.0, seed=0):
+def slanted_plane(n_views=5, size=160, slant=(0.08, 0.0), offset=0.3, contrast=0.1, noise=0.0, seed=0, flat_from=None):
     """A grey light field of one plane whose disparity is ``offset + slant . (p - centre)`` (px per px), and
     that disparity ``(size, size)``: the layered scenes of :mod:`napari_lfalias.synthetic` are fronto-parallel.
 
     The plane's texture is white noise blurred by a Gaussian of 1 px
     (standard deviation ``contrast`` about 0.5), drawn in every view at
     the point of the plane that projects there (cubic interpolation);
-    ``noise`` adds sensor noise of that standard deviation to every view.
+    ``noise`` adds sensor noise of that standard deviation to every view;
+    from the row ``flat_from`` of the centre view on, the plane has no
+    texture (a flat grey 0.5).
     """
     rng = np.random.default_rng(seed)
     margin = 64
     texture = ndimage.gaussian_filter(rng.standard_normal((size + 2 * margin,) * 2), 1.0)
     texture = 0.5 + contrast * texture / texture.std()
+    if flat_from is not None:
+        texture[margin + flat_from:] = 0.5
     centre = (size - 1) / 2.0
     steps = np.arange(n_views) - (n_views - 1) / 2.0
     grid = np.mgrid[0:size, 0:size].reshape(2, -1) - centre

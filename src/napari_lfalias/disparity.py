@@ -47,8 +47,11 @@ Method
    the best cost to the best cost more than two steps away (0: flat or
    ambiguous cost, 1: one sharp minimum).
 6. **Fill.** Where the confidence is low (no texture), the disparity is
-   taken from an edge-aware smoothing of the confident pixels (the fast
-   global smoother of Min et al. 2014, guided by the centre image).
+   taken from the plane the confident pixels around follow, where they
+   follow one (a slanted floor goes on down its slope where its texture
+   fades out), else from an edge-aware smoothing of the confident pixels
+   (the fast global smoother of Min et al. 2014, guided by the centre
+   image).
 
 Accuracy and speed are measured in ``benchmarks/bench_disparity.py``.
 
@@ -142,6 +145,16 @@ SLANT = 0.06
 SLANT_EDGE = 0.2
 #: The slanted aggregation searches this far (px) either side of the first estimate's sheared disparities.
 SLANT_REACH = 1.0
+#: The fill takes, where the confident disparities within :data:`PLANE_RADIUS` px (at most an eighth of the
+#: image's smaller side) follow a plane, that plane (:func:`_local_planes`): each pixel weighs ``confidence ** PLANE_POWER``,
+#: and the plane counts fully up to the first weighted RMS residual of :data:`PLANE_RESIDUAL` (px), not at all
+#: from the second, nor where the mean weight over its window is below :data:`PLANE_SUPPORT` (1 % of the window
+#: at confidence 0.46). HCI antinous 9x9 BadPix(0.07) / MSE x 100 9.04 / 3.57 -> 6.85 / 2.42 (the floor's bottom
+#: rows 1.18 -> 0.04 of the MSE), 5x5 8.89 / 4.03 -> 7.05 / 2.58, 3x3 9.31 / 3.28 -> 7.47 / 2.00.
+PLANE_RADIUS = 32
+PLANE_POWER = 6
+PLANE_RESIDUAL = (0.05, 0.15)
+PLANE_SUPPORT = 1e-4
 
 
 @dataclass(frozen=True)
@@ -663,10 +676,65 @@ def _winner(aggregated, slopes, step, cost=None):
 # -- filling ---------------------------------------------------------------------------------
 
 def _filled(disparity, confidence, guide):
-    """``disparity`` where confident, an edge-aware smoothing of the confident values where not."""
+    """``disparity`` where confident; where not, the plane the confident values around follow
+    (:func:`_local_planes`) where they follow one, else an edge-aware smoothing of them."""
     smooth, _ = _smooth(disparity, confidence ** 2, guide, lam=30.0)
+    # at most an eighth of a small image: its window would hold all of it (a whole vesicle fitted by one plane)
+    radius = max(2, min(PLANE_RADIUS, min(disparity.shape) // 8))
+    plane, fit = _local_planes(disparity, confidence, radius)
+    smooth = fit * plane + (1 - fit) * smooth
     keep = confidence ** 2
     return (keep * disparity + (1 - keep) * smooth).astype(np.float32)
+
+
+def _local_planes(disparity, confidence, radius):
+    """``(plane, fit)`` ``(Y, X)``: the least-squares plane of ``disparity`` over the square of ``radius``
+    around every pixel (weights ``confidence ** PLANE_POWER``) at that pixel, and how well the plane fits:
+    1 where the weighted RMS residual is at most ``PLANE_RESIDUAL[0]`` px, 0 from ``PLANE_RESIDUAL[1]`` on
+    (a window across a depth edge, or a curved surface), linear between.
+
+    The smoothing fill is of order zero: beyond the last confident pixel of a slanted surface it holds
+    that pixel's value. HCI antinous's floor (0.06 px per px) loses its texture towards the image's bottom,
+    where the fill held +1.0 over a truth of -0.8 (a third of the 9x9 squared error, in the bottom 30 rows);
+    the plane goes on down the slope. A steep weight (a pixel at confidence 0.5 counts 1/64 of a sure
+    one) keeps the wrong, unsure winners there out of the fit.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ys, xs = np.mgrid[0:64, 0:64]
+    >>> ramp = 0.05 * ys + 0.01 * xs
+    >>> sure = (ys < 40).astype(float)  # unsure winners at 9 below row 40
+    >>> plane, fit = _local_planes(np.where(sure > 0, ramp, 9.0), sure, radius=16)
+    >>> bool(fit[40:55].min() == 1), bool(np.abs(plane - ramp)[40:55].max() < 1e-3)
+    (True, True)
+    >>> bool(fit[55:].max() == 0)  # within the radius one confident row (a line: no plane) or none
+    True
+    """
+    height, width = disparity.shape
+    # centred coordinates keep the float32 moments precise (their spread, not their offset, matters)
+    ys = (np.arange(height, dtype=np.float32) - np.float32(0.5 * (height - 1)))[:, None]
+    xs = (np.arange(width, dtype=np.float32) - np.float32(0.5 * (width - 1)))[None, :]
+    d = np.asarray(disparity, np.float32)
+    w = np.asarray(confidence, np.float32) ** PLANE_POWER
+    wy, wx, wd = w * ys, w * xs, w * d
+    total, my, mx, syy, syx, sxx, md, sdy, sdx, sdd = _box(
+        np.stack([w, wy, wx, wy * ys, wy * xs, wx * xs, wd, wd * ys, wd * xs, wd * d]), radius)
+    enough = total > PLANE_SUPPORT
+    inverse = np.float32(1.0) / np.where(enough, total, np.float32(1.0))
+    my, mx, md = my * inverse, mx * inverse, md * inverse
+    cyy, cyx, cxx = syy * inverse - my * my, syx * inverse - my * mx, sxx * inverse - mx * mx
+    cdy, cdx, cdd = sdy * inverse - md * my, sdx * inverse - md * mx, sdd * inverse - md * md
+    det = cyy * cxx - cyx * cyx
+    enough &= det > 1e-6 * radius ** 4  # the confident pixels do not all lie on one line
+    det = np.where(enough, det, np.float32(1.0))
+    gy = np.where(enough, (cdy * cxx - cdx * cyx) / det, np.float32(0.0))
+    gx = np.where(enough, (cdx * cyy - cdy * cyx) / det, np.float32(0.0))
+    plane = md + gy * (ys - my) + gx * (xs - mx)
+    residual = np.sqrt(np.maximum(cdd - gy * cdy - gx * cdx, np.float32(0.0)))
+    low, high = PLANE_RESIDUAL
+    fit = np.clip((high - residual) * np.float32(1.0 / (high - low)), 0.0, 1.0) * enough
+    return plane, fit
 
 
 def _smooth(values, weights, guide, lam, sigma=0.02, iterations=3):

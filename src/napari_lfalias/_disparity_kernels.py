@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["feature_planes", "sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets", "shear_slices",
-           "unshear_min", "winner_scan", "relative_costs"]
+__all__ = ["feature_planes", "sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets",
+           "shear_slices", "unshear_min", "winner_scan", "relative_costs"]
 
 
 @njit(cache=True, parallel=True)

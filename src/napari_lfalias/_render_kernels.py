@@ -341,9 +341,9 @@ def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, o
 
 
 @njit(cache=True)
-def _bin_boxes(bins, weights, n_bins):
-    """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples
-    (those of weight > 0; all of them where ``weights`` is None)."""
+def _bin_boxes(bins, n_bins):
+    """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples, those a
+    view lacks too (their boxes take stand-ins)."""
     n_rows, n_cols = bins.shape
     boxes = np.empty((n_bins, 4), np.int64)
     boxes[:, 0] = n_rows
@@ -353,7 +353,7 @@ def _bin_boxes(bins, weights, n_bins):
     for y in range(n_rows):
         for x in range(n_cols):
             k = bins[y, x]
-            if k < 0 or (weights is not None and weights[y, x] <= 0.0):
+            if k < 0:
                 continue
             boxes[k, 0] = min(boxes[k, 0], y)
             boxes[k, 1] = max(boxes[k, 1], y)
@@ -439,7 +439,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
     all_values, all_weights, all_bins, positions, residual, others = whole
-    boxes = _bin_boxes(bins, None, taps.shape[0])
+    boxes = _bin_boxes(bins, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
         rank[order[o]] = o

@@ -418,12 +418,12 @@ class DepthGuide:
         Two fits a period apart (at least :data:`MIN_PERIOD_PX` of motion per view step) mean that every
         whole number of periods apart may fit too: where ``d + k (a - d)`` (``k`` in
         :data:`PERIODS_TRIED`) puts the pixel in focus at ``slope`` and the views agree there, as well as at
-        the estimate (:data:`PERIOD_FIT`) and closely (:data:`PERIOD_MAX_CV`), the pixel is in focus. The
-        occlusion order is judged without these pixels (:meth:`larger_first`: with them it flipped on HCI
-        antinous's 3x3 sub-grid at -1.53, 3.1 dB below the naive refocus). Measured: a fine checker wall in focus at
-        -2.4, estimated 9.6 with its second fit at 3.6, was rendered 6 px per view step out of focus, 4.4 dB
-        below the naive refocus (fresh scene 700); without the check of the views, the periods put HCI
-        antinous's 3x3 sub-grid 3.1 dB below it at -1.53.
+        the estimate (:data:`PERIOD_FIT`) and closely (:data:`PERIOD_MAX_CV`), the pixel is in focus
+        (``periods=False``: not tried). Measured: a fine checker wall in focus at -2.4, estimated 9.6 with its
+        second fit at 3.6, was rendered 6 px per view step out of focus, 4.4 dB below the naive refocus (fresh
+        scene 700). On HCI antinous's 3x3 sub-grid at -1.53 the periods put the image 3.1 dB below it, both
+        without the check of the views and with it when the occlusion order was judged with these pixels
+        (it flipped): :meth:`larger_first` judges it without them.
         """
         disparity, alternative = self.estimate[0], self.alternative
         if alternative is None:

@@ -146,8 +146,8 @@ SLANT_EDGE = 0.2
 #: The slanted aggregation searches this far (px) either side of the first estimate's sheared disparities.
 SLANT_REACH = 1.0
 #: The fill takes, where the confident disparities within :data:`PLANE_RADIUS` px (at most an eighth of the
-#: image's smaller side) follow a plane, that plane (:func:`_local_planes`): each pixel weighs ``confidence ** PLANE_POWER``,
-#: and the plane counts fully up to the first weighted RMS residual of :data:`PLANE_RESIDUAL` (px), not at all
+#: image's smaller side) follow a plane, that plane (:func:`_local_planes`): each pixel weighs
+#: ``confidence ** PLANE_POWER``, and the plane counts fully up to the first weighted RMS residual of :data:`PLANE_RESIDUAL` (px), not at all
 #: from the second, nor where the mean weight over its window is below :data:`PLANE_SUPPORT` (1 % of the window
 #: at confidence 0.46). HCI antinous 9x9 BadPix(0.07) / MSE x 100 9.04 / 3.57 -> 6.85 / 2.42 (the floor's bottom
 #: rows 1.18 -> 0.04 of the MSE), 5x5 8.89 / 4.03 -> 7.05 / 2.58, 3x3 9.31 / 3.28 -> 7.47 / 2.00.

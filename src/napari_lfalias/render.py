@@ -34,8 +34,8 @@ disparity mirrored at the image's edge: a view shifted towards the edge
 holds samples beyond it, and a box cut off there averaged only the inner
 side of its cell (a defocused wall's outer rows had ten times the naive
 refocus's error). A view's own samples still end somewhere; within a
-box's reach of that end its box is one-sided (``tests/test_render.py``
-keeps that case as an expected failure).
+box's reach of that end its box takes what the other views show of the
+same surface there (:func:`~napari_lfalias._render_kernels._stand_in`).
 
 Pixels in focus (``|d - slope| * spacing < 0.5`` px) with no defocused
 surface over them are the naive refocus exactly. The renderer is also the

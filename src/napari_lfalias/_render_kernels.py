@@ -403,6 +403,56 @@ def _stand_in(stack_values, stack_weights, stack_bins, others, i, k, r, position
     return False
 
 
+@njit(cache=True, inline="always")
+def _validity(z, size):
+    """The validity of a view's sample at ``z`` of its own ``size`` px (its bilinear taps inside: 1 within the
+    image, falling to 0 one pixel beyond its edge), as the naive refocus and the dense references weigh it."""
+    return min(max(min(z + 1.0, size - z), 0.0), 1.0)
+
+
+@njit(cache=True)
+def _data_weight(weights, y, x, origin, own, image_shape):
+    """The weight of a view's data at ``(y, x)`` whatever its own sample's validity there: its weight there
+    over that validity, or where it has no sample (beyond its own image), its weight at the nearest pixel it
+    samples; ``own``: the view's shift (grid pixel + ``own``: where in its image the view samples it)."""
+    u_y, u_x = y + origin[0] + own[0], x + origin[1] + own[1]
+    valid = _validity(u_y, image_shape[0]) * _validity(u_x, image_shape[1])
+    if valid > 0.0:
+        return weights[y, x] / valid
+    y_in = int(np.floor(min(max(u_y, 0.0), image_shape[0] - 1.0) - own[0] - origin[0] + 0.5))
+    x_in = int(np.floor(min(max(u_x, 0.0), image_shape[1] - 1.0) - own[1] - origin[1] + 0.5))
+    if y_in < 0 or x_in < 0 or y_in >= weights.shape[0] or x_in >= weights.shape[1]:
+        return 0.0
+    valid = _validity(y_in + origin[0] + own[0], image_shape[0]) * _validity(x_in + origin[1] + own[1], image_shape[1])
+    return weights[y_in, x_in] / valid if valid > 0.0 else 0.0
+
+
+@njit(cache=True)
+def _field_taps(u, a, n, f, size, out):
+    """Weights ``out (2 n + 3,)`` of a box's taps ``-(n + 1) .. n + 1`` (``n`` full taps each side of the centre,
+    end taps of weight ``f``) where the tap at offset ``t`` stands for the virtual view whose sample lies at
+    ``u + a t`` in its own image of ``size`` px: each tap by the share of it whose view holds that sample (the
+    bilinear validity of a view's sample, 1 inside, falling to 0 one pixel beyond the edge). Returns whether
+    every tap holds its sample (``out`` is then the box's own taps)."""
+    half = n + 0.5 + f
+    full = u - abs(a) * half >= 0.0 and u + abs(a) * half <= size - 1.0
+    steps = 8
+    for t in range(2 * n + 3):
+        d = t - (n + 1)
+        lo, hi = max(d - 0.5, -half), min(d + 0.5, half)
+        out[t] = 0.0
+        if hi <= lo:
+            continue
+        if full:
+            out[t] = hi - lo
+            continue
+        step = (hi - lo) / steps
+        for m in range(steps):
+            z = u + a * (lo + (m + 0.5) * step)
+            out[t] += step * _validity(z, size)
+    return full
+
+
 @njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
                     trust, covers, seen, scratch, whole, i, origin):
@@ -417,12 +467,21 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     blurred bin in this view, the hidden surface goes on behind it with
     the colour of what is seen of it nearby: its blur reaches under the
     occluder, which is what the rays between the views see there (left out,
-    the occluder's colour took the gap: a halo along its outline). Where
-    the view has no sample (beyond its field, near the image's edge), a
-    blurred bin takes what another view shows of its surface there
-    (:func:`_stand_in`) into its box: cut off there, the box averaged
-    only one side of the cell. Layers hold unit coverage; the view's cell at a pixel counts by the weight of
-    the view's sample there. A bin in focus (no blur) is its samples as
+    the occluder's colour took the gap: a halo along its outline). A
+    blurred bin's box stands for the views of the view's cell: its tap at
+    offset ``t`` for the one at ``q_i - t / r``, which samples the pixel at
+    ``p + slope * q_i - slope * t / r`` of its own image. Where that lies
+    beyond the image the tap counts by its validity there, as the naive
+    refocus and a dense aperture count a view's samples, and the cell by
+    the share of its box that counts (:func:`_field_taps`; whatever its own
+    sample's validity, :func:`_data_weight`). Where the view itself has no
+    sample under a tap that counts (beyond its own image), the tap takes
+    what another view shows of its surface there (:func:`_stand_in`).
+    Cutting the box at the view's own samples holds only for a surface at
+    disparity 0, keeping it whole only at slope 0: each was off at the
+    image's edge elsewhere (the lenslet captures at slope +-5, the
+    camera-array noise wall at slope -1). Layers hold unit coverage; the
+    view's cell at a pixel counts by the weight of the view's sample there. A bin in focus (no blur) is its samples as
     they are: it is added without a layer.
 
     ``covers (K, Y, X)``, ``seen (Y, X)`` and ``scratch (3, Y * X * (C + 3))``
@@ -431,14 +490,16 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     ``occluders[o]`` as ``o`` advances (``occluders`` never decreases along
     ``order``), and a blurred bin's layer, its box sum and the box's
     intermediate pass. ``whole``: ``(values, weights, bins, positions,
-    residual, others)`` of every view over the whole grid, the bins'
-    disparities less the slope ``(K,)`` and each view's others nearest
-    first ``(n, n - 1)``, for the stand-ins; ``i``: this view; ``origin``:
-    where this window's ``(0, 0)`` lies in the whole grid.
+    residual, others, own, image_shape, slope)``: every view over the whole
+    grid, the bins' disparities less the slope ``(K,)``, each view's others
+    nearest first ``(n, n - 1)``, each view's shift ``(n, 2)`` (grid pixel
+    + ``own[i]``: where view ``i`` samples it in its own image), the
+    image's ``(Y, X)`` and the slope; ``i``: this view; ``origin``: where
+    this window's ``(0, 0)`` lies in the whole grid.
     """
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
-    all_values, all_weights, all_bins, positions, residual, others = whole
+    all_values, all_weights, all_bins, positions, residual, others, own, image_shape, slope = whole
     boxes = _bin_boxes(bins, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
@@ -505,6 +566,36 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         means = scratch[1, :size]  # the box sums become means in place
         for j in range(size):
             means[j] /= area
+        # a box stands for the views between this view's neighbours: where some of them lack their sample
+        # (beyond the image's edge, as this view's own may) their taps do not count
+        a = -slope / residual[k]
+        tap_y = np.empty((y1 - y0, 2 * int(ny) + 3))
+        tap_x = np.empty((x1 - x0, 2 * int(nx) + 3))
+        full_y = np.empty(y1 - y0, np.bool_)
+        full_x = np.empty(x1 - x0, np.bool_)
+        for y in range(y0, y1):
+            full_y[y - y0] = _field_taps(y + origin[0] + own[i, 0], a, int(ny), fy, image_shape[0], tap_y[y - y0])
+        for x in range(x0, x1):
+            full_x[x - x0] = _field_taps(x + origin[1] + own[i, 1], a, int(nx), fx, image_shape[1], tap_x[x - x0])
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                if full_y[y - y0] and full_x[x - x0]:
+                    continue
+                for c in range(n_layer):
+                    summed[y - y0, x - x0, c] = 0.0
+                for ty in range(tap_y.shape[1]):
+                    yy = y + ty - int(ny) - 1
+                    if tap_y[y - y0, ty] <= 0.0 or yy < y0 or yy >= y1:
+                        continue
+                    for tx in range(tap_x.shape[1]):
+                        xx = x + tx - int(nx) - 1
+                        w = tap_y[y - y0, ty] * tap_x[x - x0, tx]
+                        if w <= 0.0 or xx < x0 or xx >= x1:
+                            continue
+                        for c in range(n_layer):
+                            summed[y - y0, x - x0, c] += w * layer[yy - y0, xx - x0, c]
+                for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples
+                    summed[y - y0, x - x0, c] /= area
         for y in range(y0, y1):
             for x in range(x0, x1):
                 visible = summed[y - y0, x - x0, n_ch]
@@ -514,7 +605,10 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                 covers[o, y, x] = cover
                 if cover <= 0.0:
                     continue
-                t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]  # the cell counts by its weight
+                w = weights[y, x]
+                if not (full_y[y - y0] and full_x[x - x0]):  # the cell's valid share is in its coverage already
+                    w = _data_weight(weights, y, x, origin, own[i], image_shape)
+                t = (seen[y, x] if occluders[o] >= 0 else 1.0) * w  # the cell counts by its weight
                 if t <= 0.0:
                     continue
                 t *= scale

@@ -33,9 +33,12 @@ All of this runs over the image grown by the widest box's reach, with the
 disparity mirrored at the image's edge: a view shifted towards the edge
 holds samples beyond it, and a box cut off there averaged only the inner
 side of its cell (a defocused wall's outer rows had ten times the naive
-refocus's error). A view's own samples still end somewhere; within a
-box's reach of that end its box takes what the other views show of the
-same surface there (:func:`~napari_lfalias._render_kernels._stand_in`).
+refocus's error). A box stands for the views of a view's cell, and each
+of those has its own image: a tap whose view would sample beyond its image
+counts by that sample's validity (as in the naive refocus and the dense
+references), the cell by the share of its box that counts; a tap beyond
+the view's own samples takes what the other views show of the same surface
+there (:func:`~napari_lfalias._render_kernels._stand_in`).
 
 Pixels in focus (``|d - slope| * spacing < 0.5`` px) with no defocused
 surface over them are the naive refocus exactly. The renderer is also the
@@ -467,8 +470,10 @@ def _composite(layers, windows=None):
     positions = np.ascontiguousarray(stack.positions, np.float64)
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
     nearest_first = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+    pad = (shape[0] - layers.disparity.shape[0]) // 2
+    own = np.ascontiguousarray(stack.slope * positions - pad)  # grid pixel + own[i]: where view i samples it
     whole_grid = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
-                  nearest_first)
+                  nearest_first, own, np.array(layers.disparity.shape, np.int64), float(stack.slope))
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         part = (slice(y0, y1), slice(x0, x1))
         every = (slice(None),) + part

@@ -125,6 +125,12 @@ PERIOD_FIT = 1.25
 #: whose estimate and slope both fit badly vary by 0.17-0.32 (tune: tiles, lines, bricks at +5, where they
 #: cost 0.9 dB where aliased).
 PERIOD_MAX_CV = 0.05
+#: How many steps of 0.25 either way of a disparity a whole or half number of periods away the views' fit
+#: is looked for (:meth:`DepthGuide._least_cv_near`): the period between an estimate and its alternative is
+#: measured to a few tenths, and a candidate several periods away carries that error as many times.
+PERIOD_SEARCH = 4
+#: The tiles (px) over which a pixel without a period of its own takes its neighbours' (:meth:`DepthGuide._periods`).
+PERIOD_TILE = 32
 #: The window, in ghost spacings, over which a rendering must have the naive refocus's local mean: the
 #: detection compares the naive refocus with the rendering after making it so (module notes). One
 #: spacing is a whole period of the ghosts; two keep the mean clear of the rounding of the window.
@@ -217,6 +223,7 @@ class DepthGuide:
         self._given = disparity
         self._estimate = None
         self._alternative = None
+        self._period = None
         self._slope = None
         self._at_slope = {}  # what was made for self._slope, by name
         self._focus_test = None
@@ -438,25 +445,67 @@ class DepthGuide:
         best = np.where(nearer, alternative, disparity).astype(np.float32)
         if not periods:
             return best
-        focus = np.zeros(best.shape, bool)
-        for k in PERIODS_TRIED:
-            focus |= apart & (np.abs(disparity + k * period - slope) * spacing < IN_FOCUS_PX)
-        if focus.any():
-            at_slope = self.angular_cv(slope)
-            focus &= (at_slope <= PERIOD_MAX_CV) & (
-                at_slope <= PERIOD_FIT * self._angular_cv_at(disparity, focus) + MIN_ANGULAR_CV)
-            best[focus] = np.float32(slope)
+        half = self._periods(spacing) / 2
+        periodic = half > 0
+        half[~periodic] = 1
+        lo, hi = 2 * min(PERIODS_TRIED), 2 * max(PERIODS_TRIED)
+        nearest = np.clip(np.round((slope - disparity) / half), lo, hi)
+        # the nearest half period first (the estimate and its alternative may be two periods apart), then the
+        # nearest whole one
+        whole = np.clip(2 * np.round(nearest / 2), lo, hi)
+        candidates = [disparity + nearest * half, disparity + whole * half]
+        nearer = [periodic & (np.abs(c - slope) < np.abs(best - slope)) for c in candidates]
+        nearer[1] &= whole != nearest
+        if not (nearer[0] | nearer[1]).any():
+            return best
+        fitted = {}  # angular_cv per disparity value, made once for the estimate and both candidates
+        at_estimate = self._least_cv_near(disparity, nearer[0] | nearer[1], fitted)[0]
+        undecided = np.ones(best.shape, bool)
+        for candidate, tried in zip(candidates, nearer):
+            tried &= undecided
+            at_candidate, candidate = self._least_cv_near(candidate, tried, fitted, reach=PERIOD_SEARCH)
+            in_focus = np.abs(candidate - slope) * spacing < IN_FOCUS_PX
+            fits = tried & (at_candidate <= PERIOD_MAX_CV) & (at_candidate <= PERIOD_FIT * at_estimate + MIN_ANGULAR_CV)
+            fits &= _most_around(fits)  # a surface's fit, not one pixel's chance
+            best[fits] = np.where(in_focus, np.float32(slope), candidate)[fits]
+            undecided &= ~fits
         return best
 
-    def _angular_cv_at(self, disparity, where, step=0.25):
-        """The views' :meth:`angular_cv` at each pixel's own ``disparity`` (rounded to ``step``) on
-        ``where`` (inf elsewhere)."""
-        out = np.full(disparity.shape, np.inf, np.float32)
-        rounded = np.round(disparity / step) * step
-        for value in np.unique(rounded[where]):
-            at = where & (rounded == value)
-            out[at] = self._angular_cv_of(float(value))[at]
-        return out
+    def _periods(self, spacing):
+        """Each pixel's period (disparity): the distance from the estimate to its :attr:`alternative` where
+        that is at least :data:`MIN_PERIOD_PX` of motion per view step, else the median of those periods in
+        its tile of :data:`PERIOD_TILE` px where at least a tenth of the tile has one (a periodic wall's
+        second fit is found on most of it, not all), else 0."""
+        if self._period is None:
+            disparity, alternative = self.estimate[0], self.alternative
+            period = np.abs(np.where(np.isfinite(alternative), alternative - disparity, np.float32(0)))
+            period[period * spacing < MIN_PERIOD_PX] = 0
+            filled = period.copy()
+            for y in range(0, period.shape[0], PERIOD_TILE):
+                for x in range(0, period.shape[1], PERIOD_TILE):
+                    tile = period[y:y + PERIOD_TILE, x:x + PERIOD_TILE]
+                    known = tile[tile > 0]
+                    if known.size >= 0.1 * tile.size:
+                        filled[y:y + PERIOD_TILE, x:x + PERIOD_TILE][tile == 0] = np.median(known)
+            self._period = filled.astype(np.float32)
+        return self._period.copy()
+
+    def _least_cv_near(self, disparity, where, fitted, reach=1, step=0.25):
+        """The least :meth:`angular_cv` of the views within a ``step`` of each pixel's own ``disparity`` (on
+        multiples of ``step``) on ``where`` (inf elsewhere), and the disparity where it is. A disparity found a
+        few periods from the estimate carries each period's error that many times: one step either way finds
+        the views' fit again. ``fitted``: the angular cv of each multiple of ``step`` made so far."""
+        least = np.full(disparity.shape, np.inf, np.float32)
+        at = disparity.astype(np.float32, copy=True)
+        rounded = np.round(disparity / step)
+        for offset in sorted(range(-reach, reach + 1), key=abs):
+            for value in np.unique(rounded[where] + offset):
+                if value not in fitted:
+                    fitted[value] = self._angular_cv_of(float(value * step))
+                better = where & (rounded + offset == value) & (fitted[value] < least)
+                least[better] = fitted[value][better]
+                at[better] = np.float32(value * step)
+        return least, at
 
     def _confidence_at(self, slope):
         return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])
@@ -717,3 +766,10 @@ def _unit_scaled(lf):
     unit = unit_scale(peak)
     scaled = LightField(lf.data * np.float32(unit), lf.positions, lf.meta, weights=lf.weights)
     return scaled, unit
+
+
+def _most_around(mask):
+    """Where most of each pixel's 3x3 neighbourhood (itself included) is ``mask``."""
+    from scipy import ndimage
+
+    return ndimage.uniform_filter(mask.astype(np.float32), 3, mode="nearest") > 0.5

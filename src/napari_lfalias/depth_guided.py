@@ -224,6 +224,7 @@ class DepthGuide:
         self._estimate = None
         self._alternative = None
         self._period = None
+        self._floor = None
         self._slope = None
         self._at_slope = {}  # what was made for self._slope, by name
         self._focus_test = None
@@ -458,12 +459,11 @@ class DepthGuide:
         nearer[1] &= whole != nearest
         if not (nearer[0] | nearer[1]).any():
             return best
-        fitted = {}  # angular_cv per disparity value, made once for the estimate and both candidates
-        at_estimate = self._least_cv_near(disparity, nearer[0] | nearer[1], fitted)[0]
+        at_estimate = self._least_cv_near(disparity, nearer[0] | nearer[1])[0]
         undecided = np.ones(best.shape, bool)
         for candidate, tried in zip(candidates, nearer):
             tried &= undecided
-            at_candidate, candidate = self._least_cv_near(candidate, tried, fitted, reach=PERIOD_SEARCH)
+            at_candidate, candidate = self._least_cv_near(candidate, tried, reach=PERIOD_SEARCH)
             in_focus = np.abs(candidate - slope) * spacing < IN_FOCUS_PX
             fits = tried & (at_candidate <= PERIOD_MAX_CV) & (at_candidate <= PERIOD_FIT * at_estimate + MIN_ANGULAR_CV)
             fits &= _most_around(fits)  # a surface's fit, not one pixel's chance
@@ -490,22 +490,43 @@ class DepthGuide:
             self._period = filled.astype(np.float32)
         return self._period.copy()
 
-    def _least_cv_near(self, disparity, where, fitted, reach=1, step=0.25):
-        """The least :meth:`angular_cv` of the views within a ``step`` of each pixel's own ``disparity`` (on
-        multiples of ``step``) on ``where`` (inf elsewhere), and the disparity where it is. A disparity found a
-        few periods from the estimate carries each period's error that many times: one step either way finds
-        the views' fit again. ``fitted``: the angular cv of each multiple of ``step`` made so far."""
+    def _least_cv_near(self, disparity, where, reach=1, step=0.25):
+        """The least angular variation of the views (:meth:`angular_cv`'s measure) within ``reach`` steps of
+        ``step`` of each pixel's own ``disparity`` (on multiples of ``step``) on ``where`` (inf elsewhere), and
+        the disparity where it is. A disparity a few periods from the estimate carries the error of each
+        period that many times: a few steps either way find the views' fit again."""
+        from .refocus import _run
+
         least = np.full(disparity.shape, np.inf, np.float32)
         at = disparity.astype(np.float32, copy=True)
-        rounded = np.round(disparity / step)
+        ys, xs = np.nonzero(where)
+        if ys.size == 0:
+            return least, at
+        lum = self._luminance_lf
+        weights = lum.flat_weights()
+        views = np.ascontiguousarray(lum.views(), np.float32)
+        valid = np.ones((1, 1, 1), np.float32) if weights is None else np.ascontiguousarray(weights, np.float32)
+        positions = np.ascontiguousarray(lum.flat_positions(), np.float64)
+        rounded = np.round(disparity[ys, xs].astype(np.float64) / step)
+        best_cv = np.full(ys.size, np.inf)
+        best_at = disparity[ys, xs].astype(np.float64)
+        cv = np.empty(ys.size)
         for offset in sorted(range(-reach, reach + 1), key=abs):
-            for value in np.unique(rounded[where] + offset):
-                if value not in fitted:
-                    fitted[value] = self._angular_cv_of(float(value * step))
-                better = where & (rounded + offset == value) & (fitted[value] < least)
-                least[better] = fitted[value][better]
-                at[better] = np.float32(value * step)
+            value = (rounded + offset) * step
+            _run("points_cv", views, valid, weights is not None, positions, ys.astype(np.float64),
+                 xs.astype(np.float64), value, float(self._dark_floor), cv)
+            better = cv < best_cv
+            best_cv[better], best_at[better] = cv[better], value[better]
+        least[ys, xs], at[ys, xs] = best_cv, best_at
         return least, at
+
+    @property
+    def _dark_floor(self):
+        """:data:`DARK_FLOOR` of the light field's brightest luminance."""
+        if self._floor is None:
+            peak = float(self._luminance_lf.data.max(initial=0.0))
+            self._floor = np.float32(max(DARK_FLOOR * peak, float(np.finfo(np.float32).tiny)))
+        return self._floor
 
     def _confidence_at(self, slope):
         return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])

@@ -18,7 +18,7 @@ from numba import njit, prange
 
 __all__ = [
     "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
-    "pyr_down", "luminance_ranges", "pattern_moments", "bilinear_point", "in_focus_consensus",
+    "pyr_down", "luminance_ranges", "pattern_moments", "bilinear_point", "in_focus_consensus", "points_cv",
 ]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
@@ -82,6 +82,38 @@ def bilinear_point(image, valid, has_valid, py, px, sums):
             for c in range(n_ch):
                 sums[c] += w * image[yy, xx, c]
     return total
+
+
+@njit(cache=True, parallel=True)
+def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, out):
+    """Angular coefficient of variation (weighted std / mean) of one-channel ``views (n, Y, X, 1)`` at the
+    points ``(ys, xs)`` ``(m,)``, each at its own disparity: view ``i`` sampled at ``p + d positions[i]`` with
+    :func:`bilinear_point` (``valid (n, Y, X)`` weighting the taps with ``has_valid``), each sample weighted
+    by its taps' weight, as :func:`moments` weights it. ``out (m,)``: inf where no view sees the point.
+    """
+    n = views.shape[0]
+    for k in prange(ys.shape[0]):
+        sums = np.empty(1)
+        values = np.empty(n)
+        weights = np.empty(n)
+        total = 0.0
+        mean = 0.0
+        for i in range(n):
+            w = bilinear_point(views[i], valid[i if has_valid else 0], has_valid,
+                               ys[k] + disparities[k] * positions[i, 0], xs[k] + disparities[k] * positions[i, 1],
+                               sums)
+            weights[i] = w
+            values[i] = sums[0] / w if w > 0.0 else 0.0
+            total += w
+            mean += w * values[i]
+        if total <= 0.0:
+            out[k] = np.inf
+            continue
+        mean /= total
+        spread = 0.0
+        for i in range(n):
+            spread += weights[i] * (values[i] - mean) ** 2
+        out[k] = np.sqrt(spread / total) / max(mean, floor)
 
 
 @njit(cache=True, inline="always")

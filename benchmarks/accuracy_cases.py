@@ -22,7 +22,11 @@ disparity. Cases are split:
   (seeds 900-919) was first run for stop 23's report. fresh-h (seeds
   1000-1019) was first run at the start of stop 24, before any change, and
   then chose the stand-ins of the renderer; fresh-i (seeds 1100-1119) was
-  first run for stop 24's report.
+  first run for stop 24's report, then used (scene 1119) to find the half
+  periods of stop 25. fresh-j (seeds 1200-1219) was first run at the start
+  of stop 25, before any change, then used (scene 1206) to find the periods'
+  search and the neighbours' period; fresh-k (seeds 1300-1319) was first
+  run for stop 25's report.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -176,7 +180,8 @@ def hci_cases():
 #: The seeds of the random scenes of each fresh split.
 FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c": range(500, 520),
                "fresh-d": range(600, 620), "fresh-e": range(700, 720), "fresh-f": range(800, 820),
-               "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120)}
+               "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120),
+               "fresh-j": range(1200, 1220), "fresh-k": range(1300, 1320)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -577,6 +577,28 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
             full_y[y - y0] = _field_taps(y + origin[0] + own[i, 0], a, int(ny), fy, image_shape[0], tap_y[y - y0])
         for x in range(x0, x1):
             full_x[x - x0] = _field_taps(x + origin[1] + own[i, 1], a, int(nx), fx, image_shape[1], tap_x[x - x0])
+        # the taps are separable: the pixels whose box reaches beyond an image sum along x (into the box
+        # pass's scratch, free now), then along y; the rows any of them reads are those within reach of a
+        # row cut off, and every row of a column cut off
+        across = scratch[2, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        reads = np.zeros(y1 - y0, np.bool_)
+        for y in range(y0, y1):
+            if not full_y[y - y0]:
+                for yy in range(max(y0, y - int(ny) - 1), min(y1, y + int(ny) + 2)):
+                    reads[yy - y0] = True
+        for yy in range(y0, y1):
+            for x in range(x0, x1):
+                if not reads[yy - y0] and full_x[x - x0]:
+                    continue
+                for c in range(n_layer):
+                    across[yy - y0, x - x0, c] = 0.0
+                for tx in range(tap_x.shape[1]):
+                    xx = x + tx - int(nx) - 1
+                    w = tap_x[x - x0, tx]
+                    if w <= 0.0 or xx < x0 or xx >= x1:
+                        continue
+                    for c in range(n_layer):
+                        across[yy - y0, x - x0, c] += w * layer[yy - y0, xx - x0, c]
         for y in range(y0, y1):
             for x in range(x0, x1):
                 if full_y[y - y0] and full_x[x - x0]:
@@ -585,15 +607,11 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                     summed[y - y0, x - x0, c] = 0.0
                 for ty in range(tap_y.shape[1]):
                     yy = y + ty - int(ny) - 1
-                    if tap_y[y - y0, ty] <= 0.0 or yy < y0 or yy >= y1:
+                    w = tap_y[y - y0, ty]
+                    if w <= 0.0 or yy < y0 or yy >= y1:
                         continue
-                    for tx in range(tap_x.shape[1]):
-                        xx = x + tx - int(nx) - 1
-                        w = tap_y[y - y0, ty] * tap_x[x - x0, tx]
-                        if w <= 0.0 or xx < x0 or xx >= x1:
-                            continue
-                        for c in range(n_layer):
-                            summed[y - y0, x - x0, c] += w * layer[yy - y0, xx - x0, c]
+                    for c in range(n_layer):
+                        summed[y - y0, x - x0, c] += w * across[yy - y0, x - x0, c]
                 for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples
                     summed[y - y0, x - x0, c] /= area
         for y in range(y0, y1):

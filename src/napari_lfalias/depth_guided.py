@@ -253,7 +253,11 @@ class DepthGuide:
         the surfaces the views show in focus at their true disparity, the
         slope. An estimate a period off on a periodic texture (whose
         confidence is low) can put a surface on the wrong side of another;
-        where the views say it is in focus, it is not.
+        where the views say it is in focus, it is not. Only the estimate's
+        sure pixels judge (:data:`~napari_lfalias.baselines.SURE_CONFIDENCE`):
+        the edges an unsure estimate makes inside one surface outvoted the
+        outlines (fresh scenes 1300, 1308, 1315: 0.7-2.4 dB below the
+        naive refocus, with the true disparity's order above it).
         """
         if self.nearer != "auto":
             return self.nearer == "larger"
@@ -264,7 +268,7 @@ class DepthGuide:
             return _larger_is_nearer(np.ascontiguousarray(self.lf.views()),
                                      np.ascontiguousarray(self.lf.flat_positions()),
                                      self._in_focus_at(slope, self._least_change(slope, periods=False))
-                                     .astype(np.float64))
+                                     .astype(np.float64), self._confidence_at(slope))
 
         return self._kept(slope, "larger first", make)
 

@@ -453,6 +453,20 @@ def _field_taps(u, a, n, f, size, out):
     return full
 
 
+@njit(cache=True, inline="always")
+def _tap_sum(taps, first, source, out):
+    """``out (C,)`` = the sum of ``taps[t] * source[first + t]`` over the taps that fall in ``source (N, C)``."""
+    for c in range(out.shape[0]):
+        out[c] = 0.0
+    for t in range(taps.shape[0]):
+        j = first + t
+        w = taps[t]
+        if w <= 0.0 or j < 0 or j >= source.shape[0]:
+            continue
+        for c in range(out.shape[0]):
+            out[c] += w * source[j, c]
+
+
 @njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
                     trust, covers, seen, scratch, whole, i, origin):
@@ -588,30 +602,13 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                     reads[yy - y0] = True
         for yy in range(y0, y1):
             for x in range(x0, x1):
-                if not reads[yy - y0] and full_x[x - x0]:
-                    continue
-                for c in range(n_layer):
-                    across[yy - y0, x - x0, c] = 0.0
-                for tx in range(tap_x.shape[1]):
-                    xx = x + tx - int(nx) - 1
-                    w = tap_x[x - x0, tx]
-                    if w <= 0.0 or xx < x0 or xx >= x1:
-                        continue
-                    for c in range(n_layer):
-                        across[yy - y0, x - x0, c] += w * layer[yy - y0, xx - x0, c]
+                if reads[yy - y0] or not full_x[x - x0]:
+                    _tap_sum(tap_x[x - x0], x - x0 - int(nx) - 1, layer[yy - y0], across[yy - y0, x - x0])
         for y in range(y0, y1):
             for x in range(x0, x1):
                 if full_y[y - y0] and full_x[x - x0]:
                     continue
-                for c in range(n_layer):
-                    summed[y - y0, x - x0, c] = 0.0
-                for ty in range(tap_y.shape[1]):
-                    yy = y + ty - int(ny) - 1
-                    w = tap_y[y - y0, ty]
-                    if w <= 0.0 or yy < y0 or yy >= y1:
-                        continue
-                    for c in range(n_layer):
-                        summed[y - y0, x - x0, c] += w * across[yy - y0, x - x0, c]
+                _tap_sum(tap_y[y - y0], y - y0 - int(ny) - 1, across[:, x - x0], summed[y - y0, x - x0])
                 for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples
                     summed[y - y0, x - x0, c] /= area
         for y in range(y0, y1):

@@ -594,23 +594,24 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         # the taps are separable: the pixels whose box reaches beyond an image sum along x (into the box
         # pass's scratch, free now), then along y; the rows any of them reads are those within reach of a
         # row cut off, and every row of a column cut off
-        across = scratch[2, :size].reshape((y1 - y0, x1 - x0, n_layer))
-        reads = np.zeros(y1 - y0, np.bool_)
-        for y in range(y0, y1):
-            if not full_y[y - y0]:
-                for yy in range(max(y0, y - int(ny) - 1), min(y1, y + int(ny) + 2)):
-                    reads[yy - y0] = True
-        for yy in range(y0, y1):
-            for x in range(x0, x1):
-                if reads[yy - y0] or not full_x[x - x0]:
-                    _tap_sum(tap_x[x - x0], x - x0 - int(nx) - 1, layer[yy - y0], across[yy - y0, x - x0])
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                if full_y[y - y0] and full_x[x - x0]:
-                    continue
-                _tap_sum(tap_y[y - y0], y - y0 - int(ny) - 1, across[:, x - x0], summed[y - y0, x - x0])
-                for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples
-                    summed[y - y0, x - x0, c] /= area
+        if not (full_y.all() and full_x.all()):  # else the box sums stand as they are
+            across = scratch[2, :size].reshape((y1 - y0, x1 - x0, n_layer))
+            reads = np.zeros(y1 - y0, np.bool_)
+            for y in range(y0, y1):
+                if not full_y[y - y0]:
+                    for yy in range(max(y0, y - int(ny) - 1), min(y1, y + int(ny) + 2)):
+                        reads[yy - y0] = True
+            for yy in range(y0, y1):
+                for x in range(x0, x1):
+                    if reads[yy - y0] or not full_x[x - x0]:
+                        _tap_sum(tap_x[x - x0], x - x0 - int(nx) - 1, layer[yy - y0], across[yy - y0, x - x0])
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    if full_y[y - y0] and full_x[x - x0]:
+                        continue
+                    _tap_sum(tap_y[y - y0], y - y0 - int(ny) - 1, across[:, x - x0], summed[y - y0, x - x0])
+                    for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples
+                        summed[y - y0, x - x0, c] /= area
         for y in range(y0, y1):
             for x in range(x0, x1):
                 visible = summed[y - y0, x - x0, n_ch]

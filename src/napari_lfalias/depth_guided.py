@@ -458,7 +458,7 @@ class DepthGuide:
         best = np.where(nearer, alternative, disparity).astype(np.float32)
         if not periods:
             return best
-        half = self._periods(spacing) / 2
+        half = self._periods() / 2
         periodic = half > 0
         half[~periodic] = 1
         reach = 2 * PERIODS_REACH
@@ -481,13 +481,16 @@ class DepthGuide:
             undecided &= ~fits
         return best
 
-    def _periods(self, spacing):
+    def _periods(self):
         """Each pixel's period (disparity): the distance from the estimate to its :attr:`alternative` where
         that is at least :data:`MIN_PERIOD_PX` of motion per view step, else the median of those periods in
         its tile of :data:`PERIOD_TILE` px where at least a tenth of the tile has one (a periodic wall's
         second fit is found on most of it, not all), else 0."""
         if self._period is None:
+            from .baselines import view_spacing
+
             disparity, alternative = self.estimate[0], self.alternative
+            spacing = view_spacing(self.lf.positions)
             period = np.abs(np.where(np.isfinite(alternative), alternative - disparity, np.float32(0)))
             period[period * spacing < MIN_PERIOD_PX] = 0
             filled = period.copy()
@@ -501,9 +504,10 @@ class DepthGuide:
         return self._period.copy()
 
     def _least_cv_near(self, disparity, where, reach=1, step=0.25):
-        """The least angular variation of the views (:meth:`angular_cv`'s measure) within ``reach`` steps of
-        ``step`` of each pixel's own ``disparity`` (on multiples of ``step``) on ``where`` (inf elsewhere), and
-        the disparity where it is. A disparity a few periods from the estimate carries the error of each
+        """The least angular variation of the views (:meth:`angular_cv`'s measure, its dark floor the light
+        field's brightest luminance rather than the refocus's) within ``reach`` steps of ``step`` of each
+        pixel's own ``disparity`` (on multiples of ``step``) on ``where`` (inf elsewhere), and the disparity
+        where it is. A disparity a few periods from the estimate carries the error of each
         period that many times: a few steps either way find the views' fit again."""
         from .refocus import _run
 
@@ -801,6 +805,4 @@ def _unit_scaled(lf):
 
 def _most_around(mask):
     """Where most of each pixel's 3x3 neighbourhood (itself included) is ``mask``."""
-    from scipy import ndimage
-
     return ndimage.uniform_filter(mask.astype(np.float32), 3, mode="nearest") > 0.5

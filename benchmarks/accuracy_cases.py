@@ -26,7 +26,8 @@ disparity. Cases are split:
   periods of stop 25. fresh-j (seeds 1200-1219) was first run at the start
   of stop 25, before any change, then used (scene 1206) to find the periods'
   search and the neighbours' period; fresh-k (seeds 1300-1319) was first
-  run for stop 25's report.
+  run for stop 25's report. fresh-l (seeds 1400-1419) was first run at
+  the start of stop 26, before any change.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -181,7 +182,8 @@ def hci_cases():
 FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c": range(500, 520),
                "fresh-d": range(600, 620), "fresh-e": range(700, 720), "fresh-f": range(800, 820),
                "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120),
-               "fresh-j": range(1200, 1220), "fresh-k": range(1300, 1320)}
+               "fresh-j": range(1200, 1220), "fresh-k": range(1300, 1320),
+               "fresh-l": range(1400, 1420)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 
@@ -225,14 +227,21 @@ def fresh_case(seed, split, size=256):
     return _synthetic(name, split, scene, slopes, notes, **camera, **({"seed": seed} if camera else {}))
 
 
-def fresh_cases(size=256):
-    """The random scenes of the fresh splits (:data:`FRESH_SEEDS`)."""
-    return [fresh_case(seed, split, size) for split, seeds in FRESH_SEEDS.items() for seed in seeds]
+def fresh_cases(size=256, split=None):
+    """The random scenes of the fresh splits (:data:`FRESH_SEEDS`; ``split``: of that one only), made one at
+    a time as they are iterated (a few hundred light fields do not fit in memory together)."""
+    for name, seeds in FRESH_SEEDS.items():
+        if split is None or name == split:
+            yield from (fresh_case(seed, name, size) for seed in seeds)
 
 
-def all_cases(size=256, fresh=True):
+def all_cases(size=256, fresh=True, split=None):
     """Every case: synthetic, lenslet captures through the decoder (:mod:`lenslet_cases`), real, and
-    (with ``fresh``) the random scenes."""
+    (with ``fresh``) the random scenes; ``split``: only that split's. Made as they are iterated."""
     from lenslet_cases import lenslet_cases  # it imports Case from here
 
-    return synthetic_cases(size) + lenslet_cases(size) + hci_cases() + (fresh_cases(size) if fresh else [])
+    if split is None or not split.startswith("fresh"):
+        fixed = synthetic_cases(size) + lenslet_cases(size) + hci_cases()
+        yield from (case for case in fixed if split is None or case.split == split)
+    if fresh and (split is None or split.startswith("fresh")):
+        yield from fresh_cases(size, split)

@@ -152,7 +152,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
-    parser.add_argument("--split", default=None, help="only this split (tune, holdout, real, fresh-a to fresh-k)")
+    parser.add_argument("--split", default=None, help="only this split (tune, holdout, real, fresh-a to fresh-l)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None else args.out.parent / "accuracy"
@@ -162,7 +162,7 @@ def main(argv=None):
     sections = []
     summary = {}
     strong = []  # (split, default's gain where aliased, the true-disparity rendering's) per slope with aliasing
-    for case in all_cases(args.size):
+    for case in all_cases(args.size, split=args.split):
         if args.split and case.split != args.split or args.cases and args.cases.lower() not in case.name.lower():
             continue
         lines = [f"### {case.name} ({case.split})", "", case.notes, ""]

@@ -190,8 +190,8 @@ def _cells(member):
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, border_rule,
-                outside_penalty, tiles, first, order, tolerance, within, view_scale, out):
+def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, group_scale,
+                border_rule, outside_penalty, tiles, first, order, tolerance, within, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
     Tile-major: a tile's views are read into the cache once and all its
@@ -214,6 +214,9 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         Group membership of every view (group 0: all of them).
     min_count : (G,) float32
         Fewest valid views a group needs to count.
+    group_scale : (G,) float32
+        Factor of each group's mean (a small group must fit that much
+        better to win).
     border_rule : bool
         Where some views sample outside the image, a group counts at a
         pixel only if the share of its views that sample inside is the
@@ -332,7 +335,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                         if clipped and share[g, x] < most[x] - np.float32(1e-4):
                             continue
                         if group_cnt[x] >= least:
-                            value = group_acc[x] / group_cnt[x]
+                            value = group_scale[g] * group_acc[x] / group_cnt[x]
                             if value < best[x]:
                                 best[x] = value
                 if clipped:

@@ -331,13 +331,20 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                             best[x] = group_acc[x] / c0 if c0 > 0.0 else np.float32(0.0)
                         continue
                     least = min_count[g]
-                    for x in range(width):
-                        if clipped and share[g, x] < most[x] - np.float32(1e-4):
-                            continue
-                        if group_cnt[x] >= least:
-                            value = group_scale[g] * group_acc[x] / group_cnt[x]
-                            if value < best[x]:
-                                best[x] = value
+                    scale = group_scale[g]
+                    if clipped:
+                        for x in range(width):
+                            if share[g, x] < most[x] - np.float32(1e-4):
+                                continue
+                            if group_cnt[x] >= least:
+                                value = scale * group_acc[x] / group_cnt[x]
+                                if value < best[x]:
+                                    best[x] = value
+                    else:  # branch-free, so that it vectorises
+                        for x in range(width):
+                            count = group_cnt[x]
+                            value = scale * group_acc[x] / max(count, least)
+                            best[x] = min(best[x], value if count >= least else np.float32(np.inf))
                 if clipped:
                     for x in range(width):
                         best[x] *= np.float32(1.0) + outside_penalty * (np.float32(1.0) - share[0, x])

@@ -10,7 +10,8 @@ not see an occluder wins).
 
 ``wls_rows`` solves the one-dimensional weighted-least-squares systems of
 the fast global smoother (Min et al. 2014) along every row: tridiagonal,
-solved by the Thomas algorithm, rows in parallel.
+solved by the Thomas algorithm, rows in parallel; a link between neighbours
+weakens where the guide image or a trusted depth changes.
 """
 
 from __future__ import annotations
@@ -367,8 +368,10 @@ def _thomas(lower, diag, upper, rhs, out, c_work, d_work):
 
 
 @njit(cache=True, parallel=True)
-def wls_rows(values, guide, lam, sigma, out):
-    """``(I + lam L_w) u = f`` along every row, ``w = exp(-|dg|^2 / sigma^2)`` from the guide.
+def wls_rows(values, guide, lam, sigma, depth, gate, inv_spread2, out):
+    """``(I + lam L_w) u = f`` along every row, ``w = exp(-|dg|^2 / sigma^2 - min(gate) * dd^2 * inv_spread2)``
+    from the guide's difference ``dg`` and the ``depth`` difference ``dd`` of neighbours (the lesser
+    ``gate`` of the two).
 
     Parameters
     ----------
@@ -377,6 +380,12 @@ def wls_rows(values, guide, lam, sigma, out):
     guide : (Y, X, C) float64
         The image whose edges stop the smoothing.
     lam, sigma : float
+    depth, gate : (Y, X) float64
+        Values whose differences stop the smoothing too, and how far each
+        is trusted (0: not at all; ``gate`` 0 everywhere leaves the guide alone).
+    inv_spread2 : float
+        ``1 / spread^2``: a ``depth`` step of ``spread`` between neighbours
+        trusted fully weakens their link by ``e``.
     out : (Y, X, K) float64
     """
     n_rows, n_cols, n_k = values.shape
@@ -389,7 +398,9 @@ def wls_rows(values, guide, lam, sigma, out):
             for c in range(n_ch):
                 t = guide[y, x + 1, c] - guide[y, x, c]
                 dist += t * t
-            link[x] = lam * np.exp(-dist * inv_s2)
+            step = depth[y, x + 1] - depth[y, x]
+            trust = min(gate[y, x], gate[y, x + 1])
+            link[x] = lam * np.exp(-dist * inv_s2 - trust * step * step * inv_spread2)
         lower = np.zeros(n_cols)
         upper = np.zeros(n_cols)
         diag = np.ones(n_cols)

@@ -27,7 +27,11 @@ disparity. Cases are split:
   of stop 25, before any change, then used (scene 1206) to find the periods'
   search and the neighbours' period; fresh-k (seeds 1300-1319) was first
   run for stop 25's report. fresh-l (seeds 1400-1419) was first run at
-  the start of stop 26, before any change.
+  the start of stop 26, before any change, then used (scene 1418) to find
+  the occlusion order judged per light field; fresh-m (seeds 1500-1519)
+  was first run at the start of stop 27, before any change, then used
+  (scene 1510) to find the focus test's texture on even grids; fresh-n
+  (seeds 1600-1619) was first run for stop 27's report.
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -183,7 +187,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-d": range(600, 620), "fresh-e": range(700, 720), "fresh-f": range(800, 820),
                "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120),
                "fresh-j": range(1200, 1220), "fresh-k": range(1300, 1320),
-               "fresh-l": range(1400, 1420)}
+               "fresh-l": range(1400, 1420), "fresh-m": range(1500, 1520),
+               "fresh-n": range(1600, 1620)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -465,3 +465,16 @@ def test_estimate_disparity_leaves_the_light_field_as_it_was():
     np.testing.assert_array_equal(lf.weights, weights)
     np.testing.assert_array_equal(lf.positions, positions)
     assert lf.meta == meta
+
+
+@pytest.mark.parametrize("n_views", [4, 6])
+def test_the_focus_test_sees_a_texture_the_central_views_of_an_even_grid_shift_apart(n_views):
+    # the four views nearest the centre see a checkerboard shifted 3.9 px against each other: their mean
+    # is nearly flat, so a texture measured on it left the wall untested (and never in focus)
+    from napari_lfalias.disparity import FocusTest
+
+    scene = layered_scene([(3.9, "checker", None)], n_views=n_views, size=96, seed=1)
+    test = FocusTest(scene.lightfield)
+    assert test.textured.mean() > 0.95
+    assert test(3.9).mean() > 0.9
+    assert test(1.0).mean() < 0.05

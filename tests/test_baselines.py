@@ -219,3 +219,35 @@ def test_the_occlusion_order_is_judged_from_the_sure_pixels_of_an_estimate():
     assert _larger_is_nearer(views, positions, scene.disparity.astype(np.float64))  # the true disparity
     assert not _larger_is_nearer(views, positions, disparity)  # the trap: every pixel counted
     assert _larger_is_nearer(views, positions, disparity, confidence)
+
+
+def _square_over_smooth_wall(front, back, n_views, seed, spill):
+    """A brick square at ``front`` before a smooth wall at ``back``, noisy, and an estimate whose square
+    spills ``spill`` px over the wall (a fattened edge): the views, their positions and that estimate."""
+    from napari_lfalias.synthetic.camera import capture
+
+    scene = layered_scene([(front, "bricks", (0.3, 0.7, 0.3, 0.7)), (back, "smooth", None)], n_views=n_views,
+                          size=96, seed=seed)
+    lf = capture(scene.lightfield, read_noise=0.003, shot_noise=0.007, seed=seed)
+    square = ndimage.binary_dilation(scene.disparity == np.float32(front), iterations=spill)
+    return np.ascontiguousarray(lf.views()), lf.flat_positions(), np.where(square, front, back).astype(np.float64)
+
+
+@pytest.mark.parametrize("front, back", [(4.0, -4.5), (-4.0, 4.5)])
+def test_the_samples_the_true_order_hides_explain_the_views(front, back):
+    # the wall's band outside the fattened edge is seen by every view; only leaving out the samples the
+    # square hides under the true order explains why the views disagree inside the spill
+    from napari_lfalias.baselines import _hidden_views_explain_larger_first
+
+    views, positions, disparity = _square_over_smooth_wall(front, back, 4, seed=2, spill=8)
+    assert _hidden_views_explain_larger_first(views, positions, disparity, None, None, 20_000) == (front > back)
+
+
+def test_where_the_edges_spreads_are_alike_the_hidden_samples_judge_the_order(monkeypatch):
+    import napari_lfalias.baselines as baselines
+
+    views, positions, disparity = _square_over_smooth_wall(-4.0, 4.5, 4, seed=3, spill=10)
+    monkeypatch.setattr(baselines, "CLEAR_SPREAD_RATIO", 0.0)  # the edges' spreads alone: wrong here
+    assert _larger_is_nearer(views, positions, disparity)
+    monkeypatch.undo()
+    assert not _larger_is_nearer(views, positions, disparity)

@@ -144,21 +144,31 @@ def box_views(views, ny, fy, nx, fx, out):
 # -- depth-aware rendering ------------------------------------------------------------------
 
 @njit(cache=True, parallel=True)
-def view_spread(views, positions, disparity, pixels, out):
+def view_spread(views, positions, disparity, pixels, front, hide, out):
     """Variance across the views (summed over channels) of each listed pixel, sampled at its own disparity.
 
     ``pixels (m, 2)`` int64 ``(y, x)``; view ``i`` is sampled at
-    ``p + disparity[p] * positions[i]``; ``out (m,)``.
+    ``p + disparity[p] * positions[i]``; ``out (m,)``. With ``hide``, a
+    view's sample is left out where a surface at ``front[p]`` hides it:
+    where the disparity at ``p + (disparity[p] - front[p]) * positions[i]``
+    (the point of that surface the view sees there, rounded) lies nearer
+    ``front[p]`` than ``disparity[p]``.
     """
-    n, n_ch = views.shape[0], views.shape[3]
+    n, n_rows, n_cols, n_ch = views.shape
     for k in prange(pixels.shape[0]):
         y, x = pixels[k, 0], pixels[k, 1]
         d = disparity[y, x]
+        step = d - front[y, x] if hide else 0.0
         value = np.zeros(n_ch)
         mean = np.zeros(n_ch)
         m2 = np.zeros(n_ch)
         wsum = 0.0
         for i in range(n):
+            if step != 0.0:
+                cy = int(np.rint(y + step * positions[i, 0]))
+                cx = int(np.rint(x + step * positions[i, 1]))
+                if 0 <= cy < n_rows and 0 <= cx < n_cols and abs(disparity[cy, cx] - front[y, x]) < 0.5 * abs(step):
+                    continue
             w = bilinear_point(views[i], views[i, :, :, 0], False, y + d * positions[i, 0], x + d * positions[i, 1], value)
             if w <= 0.0:
                 continue

@@ -256,6 +256,14 @@ def _disparity_map(disparity, shape=None):
 SURE_CONFIDENCE = 0.5
 #: Fewest sure pixels a side of the depth edges needs to be judged by them alone (else by all its pixels).
 MIN_SURE_PIXELS = 100
+#: Ratio of the two sides' median spreads at the depth edges within which they do not tell which side is
+#: in front (:func:`_larger_is_nearer`). On the random scenes of fresh-a..l (240), 7 judged within 1.3:
+#: 5 wrong, 2 right; the order that explains the views by what it hides got all 7 right (none wrong above).
+CLEAR_SPREAD_RATIO = 1.3
+#: Least disparity step (px per view step) at which a nearer surface is taken to hide a view's samples.
+HIDING_STEP = 1.0
+#: Farthest (px) a surface is looked for to hide a pixel's samples (:func:`_hidden_views_explain_larger_first`).
+HIDING_REACH_CAP = 24
 
 
 def _depth_edges(disparity, jump):
@@ -282,7 +290,10 @@ def _larger_is_nearer(views, positions, disparity, confidence=None, jump=0.25, b
     only its pixels of :data:`SURE_CONFIDENCE` or more where it has
     :data:`MIN_SURE_PIXELS` of them: an estimate a period off, or noisy on
     a smooth surface, makes edges inside one surface whose wrong side's
-    samples vary at the wrong disparity, not for being hidden.
+    samples vary at the wrong disparity, not for being hidden. Where the
+    two sides' spreads lie within :data:`CLEAR_SPREAD_RATIO` of each other,
+    the order that explains the views' disagreement by what it hides
+    decides (:func:`_hidden_views_explain_larger_first`).
     True when there is no such edge.
     """
     edges = _depth_edges(disparity, jump)
@@ -293,20 +304,64 @@ def _larger_is_nearer(views, positions, disparity, confidence=None, jump=0.25, b
     middle = 0.5 * (ndimage.maximum_filter(disparity, size) + ndimage.minimum_filter(disparity, size))
     sides = []
     for side in (near_edge & (disparity > middle), near_edge & (disparity < middle)):
-        if confidence is not None:
-            sure = side & (confidence >= SURE_CONFIDENCE)
-            side = sure if np.count_nonzero(sure) >= MIN_SURE_PIXELS else side
-        pixels = np.argwhere(side)
+        pixels = _sure_pixels(side, confidence, max_pixels)
         if len(pixels) == 0:
             return True
-        pixels = pixels[:: max(1, len(pixels) // max_pixels)].astype(np.int64)
-        spread = np.empty(len(pixels))
-        with _KERNEL_LOCK:
-            _kernels().view_spread(views, positions, disparity, pixels, spread)
-        sides.append(np.median(spread))
-    return bool(sides[0] <= sides[1])
+        sides.append(np.median(_spreads(views, positions, disparity, pixels)))
+    larger_first = bool(sides[0] <= sides[1])
+    if max(sides) < CLEAR_SPREAD_RATIO * min(sides):
+        return _hidden_views_explain_larger_first(views, positions, disparity, confidence, larger_first, max_pixels)
+    return larger_first
 
 
+def _sure_pixels(where, confidence, max_pixels):
+    """``(m, 2)`` int64 pixels of ``where``: its sure ones (:data:`SURE_CONFIDENCE`) where it has
+    :data:`MIN_SURE_PIXELS` of them, at most ``max_pixels``, evenly picked."""
+    if confidence is not None:
+        sure = where & (confidence >= SURE_CONFIDENCE)
+        where = sure if np.count_nonzero(sure) >= MIN_SURE_PIXELS else where
+    pixels = np.argwhere(where)
+    return pixels[:: max(1, len(pixels) // max_pixels)].astype(np.int64)
+
+
+def _spreads(views, positions, disparity, pixels, front=None):
+    """The views' spread at each of ``pixels`` (``_baseline_kernels.view_spread``); with ``front`` (Y, X),
+    leaving out the samples a surface at that disparity hides."""
+    spread = np.empty(len(pixels))
+    hide = front is not None
+    with _KERNEL_LOCK:
+        _kernels().view_spread(views, positions, disparity, pixels, front if hide else disparity, hide, spread)
+    return spread
+
+
+def _hidden_views_explain_larger_first(views, positions, disparity, confidence, fallback, max_pixels):
+    """Whether the views disagree less with the samples that larger disparities in front would hide left out
+    than with those smaller ones in front would hide.
+
+    Each pixel within the reach of a surface at least :data:`HIDING_STEP`
+    nearer or farther (its disparity times the aperture's half width) is
+    sampled at its own disparity twice: without the samples the largest
+    disparity around would hide if larger were nearer, and without those
+    the smallest would hide if smaller were. The true order leaves out the
+    samples that show the occluder, the wrong one leaves them in. Where the
+    two spreads at the edges alone cannot tell (a smooth wall hidden by a
+    surface whose estimate spills over it: fresh scene 1113), the mean
+    spreads can. ``fallback`` where no pixel is that near a step.
+    """
+    positions = np.asarray(positions, np.float64)
+    half_width = float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
+    low, high = np.percentile(disparity, [1, 99])
+    reach = int(min(HIDING_REACH_CAP, np.ceil(half_width * (high - low)) + 1))
+    largest = ndimage.maximum_filter(disparity, 2 * reach + 1)
+    smallest = ndimage.minimum_filter(disparity, 2 * reach + 1)
+    larger_near, smaller_near = largest - disparity > HIDING_STEP, disparity - smallest > HIDING_STEP
+    pixels = _sure_pixels(larger_near | smaller_near, confidence, max_pixels)
+    if len(pixels) == 0:
+        return fallback
+    larger = np.where(larger_near, largest, disparity)
+    smaller = np.where(smaller_near, smallest, disparity)
+    return bool(_spreads(views, positions, disparity, pixels, larger).mean()
+                <= _spreads(views, positions, disparity, pixels, smaller).mean())
 
 
 def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_LAYERS):

@@ -109,6 +109,36 @@ def test_the_noise_resampling_averages_away_does_not_favour_some_slopes(monkeypa
     assert none > half_way > full  # the default (0.5): measured 0.18
 
 
+@pytest.mark.parametrize("border_rule", [False, True])
+def test_the_sweep_in_blocks_of_rows_gives_the_costs_of_whole_tiles(border_rule):
+    # the sweep runs through each tile a few rows at a time, for speed only: the costs must be those of the
+    # whole tile bit for bit, where some views sample outside the image (the border rule decides per block
+    # which pixels it applies to) and with sample weights (a vignette)
+    from napari_lfalias import disparity as module
+
+    scene = layered_scene([(2.5, "bricks", (0.2, 0.7, 0.25, 0.8)), (-1.0, "noise", None)], n_views=5, size=72,
+                          seed=3)
+    lf = as_user_has_it(capture(scene.lightfield, vignetting=0.8, calibrated=True, seed=0))
+    lum, valid = module._luminance_views(lf)
+    assert valid is not None
+    features, positions = module._features(lum), lf.flat_positions().astype(np.float64)
+    slopes = np.linspace(-4.0, 4.0, 9)  # shifts of up to 8 px: the outer views leave the image
+    shape, tile = (72, 72), (32, 48)
+    needed = module._all_tiles(len(slopes), shape, tile)
+    needed[::2, 1, 0] = False  # a tile that needs only some slopes
+    blocks, _, _ = module._tile_plan(needed, shape, tile)
+    assert np.all(blocks[:, 1] - blocks[:, 0] <= module.SWEEP_BLOCK_ROWS)
+    whole = module._tile_plan
+    in_blocks = module._sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=border_rule)
+    try:
+        module._tile_plan = lambda *args: whole(*args, block_rows=10**6)
+        in_tiles = module._sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=border_rule)
+    finally:
+        module._tile_plan = whole
+    assert np.isinf(in_tiles).any() and np.isfinite(in_tiles).any()
+    np.testing.assert_array_equal(in_blocks, in_tiles)
+
+
 def test_the_aggregation_window_stops_at_a_faint_edge_of_a_dark_guide():
     # a dark wall (0.30) beside a surface only 0.01 brighter, as HCI antinous's statue rim over its wall: the
     # cost of one side must not spread over the other (measured 2-4 px beside the edge: 0.15 at the default

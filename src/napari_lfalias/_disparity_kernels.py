@@ -197,8 +197,10 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
 
     Tile-major: a tile's views are read into the cache once and all its
     slopes are computed from there (a slope-major sweep would stream the
-    whole light field from memory once per slope). Along a tile row the
-    taps are shifted slices, so the inner loops vectorise.
+    whole light field from memory once per slope); tiles a few rows high
+    keep every view's samples in the cache from one slope to the next.
+    Along a tile row the taps are shifted slices, so the inner loops
+    vectorise.
 
     Parameters
     ----------

@@ -5,6 +5,8 @@ Every light field here is handed over as a user has it, without the ground
 truth a synthetic scene keeps in its metadata (``_accuracy_scenes.as_user_has_it``).
 """
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -110,7 +112,7 @@ def test_the_noise_resampling_averages_away_does_not_favour_some_slopes(monkeypa
 
 
 @pytest.mark.parametrize("border_rule", [False, True])
-def test_the_sweep_in_blocks_of_rows_gives_the_costs_of_whole_tiles(border_rule):
+def test_the_sweep_in_blocks_of_rows_gives_the_costs_of_whole_tiles(border_rule, monkeypatch):
     # the sweep runs through each tile a few rows at a time, for speed only: the costs must be those of the
     # whole tile bit for bit, where some views sample outside the image (the border rule decides per block
     # which pixels it applies to) and with sample weights (a vignette)
@@ -128,13 +130,9 @@ def test_the_sweep_in_blocks_of_rows_gives_the_costs_of_whole_tiles(border_rule)
     needed[::2, 1, 0] = False  # a tile that needs only some slopes
     blocks, _, _ = module._tile_plan(needed, shape, tile)
     assert np.all(blocks[:, 1] - blocks[:, 0] <= module.SWEEP_BLOCK_ROWS)
-    whole = module._tile_plan
     in_blocks = module._sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=border_rule)
-    try:
-        module._tile_plan = lambda *args: whole(*args, block_rows=10**6)
-        in_tiles = module._sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=border_rule)
-    finally:
-        module._tile_plan = whole
+    monkeypatch.setattr(module, "_tile_plan", functools.partial(module._tile_plan, block_rows=10**6))
+    in_tiles = module._sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=border_rule)
     assert np.isinf(in_tiles).any() and np.isfinite(in_tiles).any()
     np.testing.assert_array_equal(in_blocks, in_tiles)
 

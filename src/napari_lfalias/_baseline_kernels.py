@@ -144,21 +144,21 @@ def box_views(views, ny, fy, nx, fx, out):
 # -- depth-aware rendering ------------------------------------------------------------------
 
 @njit(cache=True, parallel=True)
-def view_spread(views, positions, disparity, pixels, front, hide, out):
+def view_spread(views, positions, disparity, pixels, front, out):
     """Variance across the views (summed over channels) of each listed pixel, sampled at its own disparity.
 
     ``pixels (m, 2)`` int64 ``(y, x)``; view ``i`` is sampled at
-    ``p + disparity[p] * positions[i]``; ``out (m,)``. With ``hide``, a
-    view's sample is left out where a surface at ``front[p]`` hides it:
-    where the disparity at ``p + (disparity[p] - front[p]) * positions[i]``
-    (the point of that surface the view sees there, rounded) lies nearer
-    ``front[p]`` than ``disparity[p]``.
+    ``p + disparity[p] * positions[i]``; ``out (m,)``. A view's sample is
+    left out where a surface at ``front[p]`` hides it: where the disparity
+    at ``p + (disparity[p] - front[p]) * positions[i]`` (the point of that
+    surface the view sees there, rounded) lies nearer ``front[p]`` than
+    ``disparity[p]``. ``front`` = ``disparity`` leaves every sample in.
     """
     n, n_rows, n_cols, n_ch = views.shape
     for k in prange(pixels.shape[0]):
         y, x = pixels[k, 0], pixels[k, 1]
         d = disparity[y, x]
-        step = d - front[y, x] if hide else 0.0
+        step = d - front[y, x]
         value = np.zeros(n_ch)
         mean = np.zeros(n_ch)
         m2 = np.zeros(n_ch)

@@ -328,9 +328,8 @@ def _spreads(views, positions, disparity, pixels, front=None):
     """The views' spread at each of ``pixels`` (``_baseline_kernels.view_spread``); with ``front`` (Y, X),
     leaving out the samples a surface at that disparity hides."""
     spread = np.empty(len(pixels))
-    hide = front is not None
     with _KERNEL_LOCK:
-        _kernels().view_spread(views, positions, disparity, pixels, front if hide else disparity, hide, spread)
+        _kernels().view_spread(views, positions, disparity, pixels, disparity if front is None else front, spread)
     return spread
 
 

@@ -406,10 +406,10 @@ def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=No
     valid = valid if has_valid else np.ones((1, 1, 1), np.float32)
     within = tolerance is not None
     tolerance = np.ascontiguousarray(tolerance, np.float32) if within else np.zeros((1, 1), np.float32)
-    tiles, first, order = _tile_plan(needed, shape, tile)
+    blocks, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
          np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count, group_scale,
-         border_rule, np.float32(OUTSIDE_PENALTY), tiles, first, order, tolerance, within,
+         border_rule, np.float32(OUTSIDE_PENALTY), blocks, first, order, tolerance, within,
          _blur_scales(positions, slopes), out)
     return out
 

@@ -84,6 +84,30 @@ def bilinear_point(image, valid, has_valid, py, px, sums):
     return total
 
 
+@njit(cache=True, inline="always")
+def _bilinear_inside(image, valid, has_valid, y0, x0, fy, fx):
+    """:func:`bilinear_point`'s weight and tap sum of channel 0 where all four taps lie inside the image:
+    the same arithmetic in the same order, without its bounds tests."""
+    total = 0.0
+    value = 0.0
+    for dy in range(2):
+        wy = fy if dy == 1 else 1.0 - fy
+        for dx in range(2):
+            w = wy * (fx if dx == 1 else 1.0 - fx)
+            if has_valid:
+                w *= valid[y0 + dy, x0 + dx]
+            if w <= 0.0:
+                continue
+            total += w
+            value += w * image[y0 + dy, x0 + dx, 0]
+    return total, value
+
+
+#: Points per block of :func:`points_cv`: each view is sampled over a block's points in turn (points in
+#: raster order lie in a few rows of every view, which then stay in the cache).
+POINTS_BLOCK = 256
+
+
 @njit(cache=True, parallel=True)
 def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, out):
     """Angular coefficient of variation (weighted std / mean) of one-channel ``views (n, Y, X, 1)`` at the
@@ -92,28 +116,42 @@ def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, ou
     by its taps' weight, as :func:`moments` weights it. ``out (m,)``: inf where no view sees the point.
     """
     n = views.shape[0]
-    for k in prange(ys.shape[0]):
+    m = ys.shape[0]
+    for block in prange((m + POINTS_BLOCK - 1) // POINTS_BLOCK):
+        start = block * POINTS_BLOCK
+        stop = min(start + POINTS_BLOCK, m)
         sums = np.empty(1)
-        values = np.empty(n)
-        weights = np.empty(n)
-        total = 0.0
-        mean = 0.0
+        values = np.empty((stop - start, n))
+        weights = np.empty((stop - start, n))
         for i in range(n):
-            w = bilinear_point(views[i], valid[i if has_valid else 0], has_valid,
-                               ys[k] + disparities[k] * positions[i, 0], xs[k] + disparities[k] * positions[i, 1],
-                               sums)
-            weights[i] = w
-            values[i] = sums[0] / w if w > 0.0 else 0.0
-            total += w
-            mean += w * values[i]
-        if total <= 0.0:
-            out[k] = np.inf
-            continue
-        mean /= total
-        spread = 0.0
-        for i in range(n):
-            spread += weights[i] * (values[i] - mean) ** 2
-        out[k] = np.sqrt(spread / total) / max(mean, floor)
+            view = views[i]
+            n_rows, n_cols = view.shape[0], view.shape[1]
+            for k in range(start, stop):
+                py = ys[k] + disparities[k] * positions[i, 0]
+                px = xs[k] + disparities[k] * positions[i, 1]
+                y0, x0 = int(np.floor(py)), int(np.floor(px))
+                if 0 <= y0 < n_rows - 1 and 0 <= x0 < n_cols - 1:  # all four taps inside
+                    w, value = _bilinear_inside(view, valid[i if has_valid else 0], has_valid, y0, x0, py - y0,
+                                                px - x0)
+                else:
+                    w = bilinear_point(view, valid[i if has_valid else 0], has_valid, py, px, sums)
+                    value = sums[0]
+                weights[k - start, i] = w
+                values[k - start, i] = value / w if w > 0.0 else 0.0
+        for k in range(start, stop):
+            total = 0.0
+            mean = 0.0
+            for i in range(n):
+                total += weights[k - start, i]
+                mean += weights[k - start, i] * values[k - start, i]
+            if total <= 0.0:
+                out[k] = np.inf
+                continue
+            mean /= total
+            spread = 0.0
+            for i in range(n):
+                spread += weights[k - start, i] * (values[k - start, i] - mean) ** 2
+            out[k] = np.sqrt(spread / total) / max(mean, floor)
 
 
 @njit(cache=True, inline="always")

@@ -24,7 +24,8 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "views_differ", "in_focus_colour", "in_focus_colour_near", "composite_views"]
+__all__ = ["view_bins", "views_differ", "in_focus_colour", "in_focus_colour_near", "sampled_lines",
+           "composite_views"]
 
 
 @njit(cache=True, inline="always")
@@ -403,6 +404,47 @@ def _stand_in(stack_values, stack_weights, stack_bins, others, i, k, r, position
     return False
 
 
+@njit(cache=True)
+def _may_stand_in(known, z0, z, position, sampled, others, i, r):
+    """Whether another view may stand in (:func:`_stand_in`) on line ``z`` of the grid along one axis:
+    whether the two lines its taps fall on lie in the grid and each holds a sample of that view
+    (``sampled (n, size)``: which lines of each view do; ``position``: the views' coordinate on the
+    axis). ``known``: the answers so far for the lines from ``z0`` on (0: not yet asked, 1: yes, 2: no).
+    A sample lacking where no view passes this test on both axes is passed over without looking for a
+    stand-in."""
+    if known[z - z0] == 0:
+        size = sampled.shape[1]
+        known[z - z0] = 2
+        for j in others:
+            s0 = int(np.floor(z + r * (position[j] - position[i])))
+            if s0 >= 0 and s0 + 1 < size and sampled[j, s0] and sampled[j, s0 + 1]:
+                known[z - z0] = 1
+                break
+    return known[z - z0] == 1
+
+
+@njit(cache=True, parallel=True)
+def sampled_lines(weights, rows, cols):
+    """Which rows ``(n, Y)`` of each view's ``weights (n, Y, X)`` hold a sample, and a superset of its columns
+    that do ``(n, X)``: those between the first and the last sample of some row (what
+    :func:`_may_stand_in` needs: it never says no where a view may stand in)."""
+    n_cols = weights.shape[2]
+    for i in prange(weights.shape[0]):
+        rows[i] = False
+        cols[i] = False
+        for y in range(weights.shape[1]):
+            first = 0
+            while first < n_cols and not weights[i, y, first] > 0.0:
+                first += 1
+            if first == n_cols:
+                continue
+            last = n_cols - 1
+            while not weights[i, y, last] > 0.0:
+                last -= 1
+            rows[i, y] = True
+            cols[i, first:last + 1] = True
+
+
 @njit(cache=True, inline="always")
 def _validity(z, size):
     """The validity of a view's sample at ``z`` of its own ``size`` px (its bilinear taps inside: 1 within the
@@ -468,6 +510,27 @@ def _tap_sum(taps, first, source, out):
 
 
 @njit(cache=True)
+def _no_taps(taps):
+    """Which rows of ``taps (m, T)`` weigh nothing (all taps <= 0)."""
+    out = np.ones(taps.shape[0], np.bool_)
+    for m in range(taps.shape[0]):
+        for t in range(taps.shape[1]):
+            if taps[m, t] > 0.0:
+                out[m] = False
+                break
+    return out
+
+
+@njit(cache=True, inline="always")
+def _mark_taps(taps, first, out):
+    """Mark in ``out`` the entries ``first + t`` that :func:`_tap_sum` reads: those its taps weigh."""
+    for t in range(taps.shape[0]):
+        j = first + t
+        if taps[t] > 0.0 and 0 <= j < out.shape[0]:
+            out[j] = True
+
+
+@njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
                     trust, covers, seen, scratch, whole, i, origin):
     """Composite one view's bins front to back into the accumulators (one thread).
@@ -504,16 +567,19 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     ``occluders[o]`` as ``o`` advances (``occluders`` never decreases along
     ``order``), and a blurred bin's layer, its box sum and the box's
     intermediate pass. ``whole``: ``(values, weights, bins, positions,
-    residual, others, own, image_shape, slope)``: every view over the whole
-    grid, the bins' disparities less the slope ``(K,)``, each view's others
-    nearest first ``(n, n - 1)``, each view's shift ``(n, 2)`` (grid pixel
-    + ``own[i]``: where view ``i`` samples it in its own image), the
-    image's ``(Y, X)`` and the slope; ``i``: this view; ``origin``: where
-    this window's ``(0, 0)`` lies in the whole grid.
+    residual, others, own, image_shape, slope, sampled_rows, sampled_cols)``:
+    every view over the whole grid, the bins' disparities less the slope
+    ``(K,)``, each view's others nearest first ``(n, n - 1)``, each view's
+    shift ``(n, 2)`` (grid pixel + ``own[i]``: where view ``i`` samples it
+    in its own image), the image's ``(Y, X)``, the slope, and which rows
+    ``(n, Y)`` and columns ``(n, X)`` of each view may hold a sample
+    (:func:`sampled_lines`); ``i``: this view; ``origin``: where this
+    window's ``(0, 0)`` lies in the whole grid.
     """
     n_rows, n_cols, n_ch = values.shape
     n_order = order.shape[0]
-    all_values, all_weights, all_bins, positions, residual, others, own, image_shape, slope = whole
+    all_values, all_weights, all_bins, positions, residual, others, own, image_shape, slope, sampled_rows, \
+        sampled_cols = whole
     boxes = _bin_boxes(bins, taps.shape[0])
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
@@ -556,6 +622,8 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         size = (y1 - y0) * (x1 - x0) * n_layer
         scratch[0, :size] = 0.0
         layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        rows_in = np.zeros(y_hi + 1 - y_lo, np.int8)  # where another view may stand in (_may_stand_in)
+        cols_in = np.zeros(x_hi + 1 - x_lo, np.int8)
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
                 if bins[y, x] != k:
@@ -563,8 +631,12 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                 if weights[y, x] > 0.0:
                     for c in range(n_ch):
                         layer[y - y0, x - x0, c] = values[y, x, c]
-                elif not _stand_in(all_values, all_weights, all_bins, others[i], i, k, residual[k], positions,
-                                   y + origin[0], x + origin[1], layer[y - y0, x - x0, :n_ch]):
+                elif not (_may_stand_in(rows_in, y_lo + origin[0], y + origin[0], positions[:, 0], sampled_rows,
+                                        others[i], i, residual[k])
+                          and _may_stand_in(cols_in, x_lo + origin[1], x + origin[1], positions[:, 1], sampled_cols,
+                                            others[i], i, residual[k])
+                          and _stand_in(all_values, all_weights, all_bins, others[i], i, k, residual[k], positions,
+                                        y + origin[0], x + origin[1], layer[y - y0, x - x0, :n_ch])):
                     continue
                 layer[y - y0, x - x0, n_ch] = 1.0
                 layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
@@ -592,22 +664,29 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         for x in range(x0, x1):
             full_x[x - x0] = _field_taps(x + origin[1] + own[i, 1], a, int(nx), fx, image_shape[1], tap_x[x - x0])
         # the taps are separable: the pixels whose box reaches beyond an image sum along x (into the box
-        # pass's scratch, free now), then along y; the rows any of them reads are those within reach of a
-        # row cut off, and every row of a column cut off
+        # pass's scratch, free now), then along y. A pixel whose taps along either axis are all 0 (no view
+        # of its cell holds a sample) sums to 0; the rows the others read are those their taps weigh: in a
+        # column cut off, those of any row, elsewhere those of the rows cut off
         if not (full_y.all() and full_x.all()):  # else the box sums stand as they are
             across = scratch[2, :size].reshape((y1 - y0, x1 - x0, n_layer))
-            reads = np.zeros(y1 - y0, np.bool_)
-            for y in range(y0, y1):
-                if not full_y[y - y0]:
-                    for yy in range(max(y0, y - int(ny) - 1), min(y1, y + int(ny) + 2)):
-                        reads[yy - y0] = True
+            none_y, none_x = _no_taps(tap_y), _no_taps(tap_x)
+            reads = np.zeros(y1 - y0, np.bool_)  # by the rows cut off
+            reads_any = np.zeros(y1 - y0, np.bool_)  # by any row
+            for y in range(y1 - y0):
+                if not none_y[y]:
+                    _mark_taps(tap_y[y], y - int(ny) - 1, reads_any)
+                    if not full_y[y]:
+                        _mark_taps(tap_y[y], y - int(ny) - 1, reads)
             for yy in range(y0, y1):
                 for x in range(x0, x1):
-                    if reads[yy - y0] or not full_x[x - x0]:
+                    if not none_x[x - x0] and (reads_any[yy - y0] if not full_x[x - x0] else reads[yy - y0]):
                         _tap_sum(tap_x[x - x0], x - x0 - int(nx) - 1, layer[yy - y0], across[yy - y0, x - x0])
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     if full_y[y - y0] and full_x[x - x0]:
+                        continue
+                    if none_y[y - y0] or none_x[x - x0]:
+                        summed[y - y0, x - x0] = 0.0
                         continue
                     _tap_sum(tap_y[y - y0], y - y0 - int(ny) - 1, across[:, x - x0], summed[y - y0, x - x0])
                     for c in range(n_layer):  # over the whole box: the cell counts by the share that holds samples

@@ -472,8 +472,12 @@ def _composite(layers, windows=None):
     nearest_first = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
     pad = (shape[0] - layers.disparity.shape[0]) // 2
     own = np.ascontiguousarray(stack.slope * positions - pad)  # grid pixel + own[i]: where view i samples it
+    sampled_rows = np.empty(bins.shape[:2], bool)
+    sampled_cols = np.empty((bins.shape[0], bins.shape[2]), bool)
+    _run("sampled_lines", stack.weights, sampled_rows, sampled_cols)
     whole_grid = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
-                  nearest_first, own, np.array(layers.disparity.shape, np.int64), float(stack.slope))
+                  nearest_first, own, np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows,
+                  sampled_cols)
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         part = (slice(y0, y1), slice(x0, x1))
         every = (slice(None),) + part

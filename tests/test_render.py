@@ -426,3 +426,34 @@ def test_a_sample_is_passed_over_only_where_no_other_view_can_stand_in_for_it():
                     found += stands_in
                     passed_over += not may
     assert found > 1000 and passed_over > 1000  # both happen: the test is not empty either way
+
+
+@pytest.mark.parametrize("hides", [False, True])
+@pytest.mark.parametrize("box", [(0, 0.4, 0, 0.4), (1, 0.95, 2, 0.1), (3, 0.5, 3, 0.5), (2, 0.0, 0, 0.7)])
+def test_a_sparse_layers_box_summed_pixel_by_pixel_is_the_separable_box(box, hides):
+    # the composite sums a layer with few pixels (an outline's) by scattering each into its box; where the
+    # composite reads the sums (every plane, the hidden one where the bin covers something) they are the
+    # separable passes' to float rounding
+    from napari_lfalias._baseline_kernels import box_image_into
+    from napari_lfalias._render_kernels import _box_scatter
+
+    rng = np.random.default_rng(int(100 * sum(box)) + hides)
+    n_ch, n_rows, n_cols = 3, 37, 45
+    layer = np.zeros((n_rows, n_cols, n_ch + (3 if hides else 2)), np.float32)
+    held = rng.random((n_rows, n_cols)) < 0.04
+    held[0, 5] = held[n_rows - 1, n_cols - 1] = True  # at the edges too
+    layer[held, :n_ch] = rng.random((held.sum(), n_ch))
+    layer[held, n_ch] = 1.0
+    layer[held, n_ch + 1] = rng.random(held.sum())
+    if hides:
+        layer[(rng.random((n_rows, n_cols)) < 0.3) & ~held, n_ch + 2] = 1.0
+    ny, fy, nx, fx = box
+    separable, scattered = np.empty_like(layer), np.empty_like(layer)
+    box_image_into(layer, ny, fy, nx, fx, separable, np.empty_like(layer))
+    _box_scatter(layer, ny, fy, nx, fx, n_ch, hides, scattered)
+    read = separable[..., n_ch] > 0
+    assert read.sum() > 100
+    np.testing.assert_allclose(scattered[..., :n_ch + 2], separable[..., :n_ch + 2], rtol=1e-6, atol=1e-6)
+    if hides:
+        np.testing.assert_allclose(scattered[read, n_ch + 2], separable[read, n_ch + 2], rtol=1e-6, atol=1e-6)
+        assert separable[~read, n_ch + 2].any()  # there the sums differ: nothing reads them

@@ -509,6 +509,51 @@ def _tap_sum(taps, first, source, out):
             out[c] += w * source[j, c]
 
 
+#: A bin's box is summed pixel by pixel (:func:`_box_scatter`) where that costs less than this share of the
+#: separable passes over its layer (an outline's few pixels in a box around the whole image).
+SCATTER_SHARE = 2.0
+
+
+@njit(cache=True, inline="always")
+def _box_weight(offset, n, f):
+    """The weight of a box's tap ``offset`` px from its centre: 1 within ``n``, ``f`` at ``n + 1``."""
+    return f if abs(offset) == n + 1 else 1.0
+
+
+@njit(cache=True)
+def _box_scatter(layer, ny, fy, nx, fx, n_ch, hides, out):
+    """:func:`~napari_lfalias._baseline_kernels.box_image_into` of a sparse ``layer (Y, X, K)`` into ``out``,
+    where it counts: each pixel of the bin (coverage, plane ``n_ch``) adds its colour, coverage and
+    confidence to the box around it; with ``hides``, the hidden plane (the last) is summed only where
+    the bin covers something, the only pixels whose composite reads it."""
+    n_rows, n_cols, n_k = layer.shape
+    n_spread = n_k - 1 if hides else n_k
+    out[:] = 0.0
+    for y in range(n_rows):
+        for x in range(n_cols):
+            if not layer[y, x, n_ch] > 0.0:
+                continue
+            for ty in range(max(y - ny - 1, 0), min(y + ny + 2, n_rows)):
+                wy = _box_weight(ty - y, ny, fy)
+                for tx in range(max(x - nx - 1, 0), min(x + nx + 2, n_cols)):
+                    w = np.float32(wy * _box_weight(tx - x, nx, fx))
+                    for c in range(n_spread):
+                        out[ty, tx, c] += w * layer[y, x, c]
+    if not hides:
+        return
+    for y in range(n_rows):
+        for x in range(n_cols):
+            if not out[y, x, n_ch] > 0.0:
+                continue
+            hidden = np.float32(0.0)
+            for ty in range(max(y - ny - 1, 0), min(y + ny + 2, n_rows)):
+                wy = _box_weight(ty - y, ny, fy)
+                for tx in range(max(x - nx - 1, 0), min(x + nx + 2, n_cols)):
+                    if layer[ty, tx, n_k - 1] > 0.0:
+                        hidden += np.float32(wy * _box_weight(tx - x, nx, fx)) * layer[ty, tx, n_k - 1]
+            out[y, x, n_k - 1] = hidden
+
+
 @njit(cache=True)
 def _no_taps(taps):
     """Which rows of ``taps (m, T)`` weigh nothing (all taps <= 0)."""
@@ -622,6 +667,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         size = (y1 - y0) * (x1 - x0) * n_layer
         scratch[0, :size] = 0.0
         layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
+        held = 0  # the layer's pixels that hold something
         rows_in = np.zeros(y_hi + 1 - y_lo, np.int8)  # where another view may stand in (_may_stand_in)
         cols_in = np.zeros(x_hi + 1 - x_lo, np.int8)
         for y in range(y_lo, y_hi + 1):
@@ -640,6 +686,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                     continue
                 layer[y - y0, x - x0, n_ch] = 1.0
                 layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
+                held += 1
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
@@ -647,7 +694,12 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
                     if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
                         layer[y - y0, x - x0, n_ch + 2] = 1.0
         summed = scratch[1, :size].reshape((y1 - y0, x1 - x0, n_layer))
-        box_image_into(layer, int(ny), fy, int(nx), fx, summed, scratch[2, :size].reshape(summed.shape))
+        box = (2 * int(ny) + 3) * (2 * int(nx) + 3)
+        spread = held * box * (1 + box if hides else 1)  # the scatter, and the gather of the hidden plane
+        if spread < SCATTER_SHARE * size:
+            _box_scatter(layer, int(ny), fy, int(nx), fx, n_ch, hides, summed)
+        else:
+            box_image_into(layer, int(ny), fy, int(nx), fx, summed, scratch[2, :size].reshape(summed.shape))
         area = np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
         means = scratch[1, :size]  # the box sums become means in place
         for j in range(size):

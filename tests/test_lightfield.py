@@ -129,6 +129,16 @@ def test_luminance_uses_rec709():
     assert grey.luminance() is grey
 
 
+def test_luminance_of_data_in_memory_and_lazy_data_is_the_same():
+    # in memory the sums run on every core (a kernel), lazily through dask's matmul: the same float32 sums
+    da = pytest.importorskip("dask.array")
+    data = np.random.default_rng(2).uniform(-0.5, 3.0, (3, 4, 33, 35, 3)).astype(np.float32)
+    in_memory = LightField(data).luminance().data
+    lazy = LightField(da.from_array(data, chunks=(1, 2, 33, 35, 3))).luminance().data.compute()
+    np.testing.assert_array_equal(in_memory, lazy)
+    np.testing.assert_array_equal(in_memory[..., 0], data @ REC709)
+
+
 def test_subset_keeps_positions_weights_and_meta():
     weights = np.random.default_rng(1).random((3, 4, 5, 6)).astype(np.float32)
     lf = LightField(_data(), meta={"source": "x"}, weights=weights)

@@ -18,7 +18,7 @@ from numba import njit, prange
 
 __all__ = [
     "split_shifts", "refocus_sum", "shifted_stack", "moments", "moments_tiles", "stack_moments", "stack_mean",
-    "pyr_down", "luminance_ranges", "pattern_moments", "bilinear_point", "in_focus_consensus", "points_cv",
+    "pyr_down", "luminance_ranges", "pattern_moments", "bilinear_point", "in_focus_consensus", "points_cv", "rec709",
 ]
 
 #: Bilinear taps lighter than this are dropped, so near-integer shifts stay exact.
@@ -152,6 +152,17 @@ def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, ou
             for i in range(n):
                 spread += weights[k - start, i] * (values[k - start, i] - mean) ** 2
             out[k] = np.sqrt(spread / total) / max(mean, floor)
+
+
+@njit(cache=True, parallel=True)
+def rec709(colour, weights, out):
+    """``out (m,)`` = ``colour (m, 3) @ weights (3,)`` in float32, summed left to right as numpy's matmul sums
+    them, in blocks of pixels over the cores."""
+    m = colour.shape[0]
+    block = 1 << 14
+    for start in prange((m + block - 1) // block):
+        for j in range(start * block, min(start * block + block, m)):
+            out[j] = colour[j, 0] * weights[0] + colour[j, 1] * weights[1] + colour[j, 2] * weights[2]
 
 
 @njit(cache=True, inline="always")

@@ -241,7 +241,13 @@ class LightField:
         if self.n_channels == 1:
             return self
         data = self.data if self.is_lazy else np.asarray(self.data)
-        lum = (data @ REC709)[..., None]
+        if not self.is_lazy and data.dtype == np.float32 and data.shape[-1] == 3 and data.flags.c_contiguous:
+            from .refocus import _run
+
+            lum = np.empty(data.shape[:-1] + (1,), np.float32)  # data @ REC709, the same sums, on every core
+            _run("rec709", data.reshape(-1, data.shape[-1]), REC709, lum.reshape(-1))
+        else:
+            lum = (data @ REC709)[..., None]
         return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
 
     def subset(self, rows=slice(None), cols=slice(None)):

@@ -130,12 +130,14 @@ PERIOD_FIT = 1.25
 #: whose estimate and slope both fit badly vary by 0.17-0.32 (tune: tiles, lines, bricks at +5, where they
 #: cost 0.9 dB where aliased).
 PERIOD_MAX_CV = 0.05
-#: How many steps of 0.25 either way of a disparity a whole or half number of periods away the views' fit
-#: is looked for (:meth:`DepthGuide._least_cv_near`): the period between an estimate and its alternative is
-#: measured to a few tenths, and a disparity several periods away carries that error as many times (fresh
-#: scene 1206: a checker wall at 3.8, estimated -16.2 with its second fit at -6.3, two periods 9.9 apart:
-#: 3.5, the views vary by 0.09 there, by 0.016 at 3.75).
+#: How many steps of :data:`PERIOD_STEP` either way of a disparity a whole or half number of periods away
+#: the views' fit is looked for (:meth:`DepthGuide._least_cv_near`): the period between an estimate and its
+#: alternative is measured to a few tenths, and a disparity several periods away carries that error as many
+#: times (fresh scene 1206: a checker wall at 3.8, estimated -16.2 with its second fit at -6.3, two periods
+#: 9.9 apart: 3.5, the views vary by 0.09 there, by 0.016 at 3.75).
 PERIOD_SEARCH = 4
+#: The step (disparity) of that search.
+PERIOD_STEP = 0.25
 #: The tiles (px) over which a pixel without a period of its own takes its neighbours'
 #: (:meth:`DepthGuide._periods`).
 PERIOD_TILE = 32
@@ -470,12 +472,17 @@ class DepthGuide:
         """The estimate, with the :attr:`alternative` where that is nearer ``slope``: of two disparities the
         views cannot tell apart, the one whose rendering changes the naive refocus least.
 
-        Two fits a period apart (at least :data:`MIN_PERIOD_PX` of motion per view step) mean that every
+        A surface (a connected region of the pixels whose alternative is nearer) moves to its alternative
+        whole, where on most of it the views vary there about as little as at the estimate
+        (:data:`PERIOD_FIT`), else not at all: taken pixel by pixel wherever the estimate found one, the
+        second fit split a checker at -4.8 by the phase of its texture (fresh scene 505 at slope 5: 59 % of
+        it at 7.2, where its views varied 7x more), and the rendering drew it at two blurs, 3.2 dB below the
+        naive refocus on its clean pixels. Two fits a period apart (at least :data:`MIN_PERIOD_PX` of motion per view step) mean that every
         whole number of periods apart may fit too, and where the two are two periods apart, so may the half
         numbers: the pixel moves to the one of those (up to :data:`PERIODS_REACH`) nearest ``slope``, the
         nearest half number first, then the nearest whole one, where the views agree there (found within
         :data:`PERIOD_SEARCH` steps of it) about as well as at the estimate (:data:`PERIOD_FIT`) and
-        closely (:data:`PERIOD_MAX_CV`), on most of its 3x3 neighbourhood; in focus there, it is put at the
+        closely (:data:`PERIOD_MAX_CV`), on most of its surface (as above); in focus there, it is put at the
         slope. A pixel without an alternative of its own takes its neighbours' period (:meth:`_periods`).
         ``periods=False``: only the two fits. Measured (unseen, stop 24's code): a checker wall at 3.8
         estimated two periods off was flattened, 21 dB below the naive refocus at 2.9 (fresh scene 1206;
@@ -496,6 +503,11 @@ class DepthGuide:
         period = np.where(np.isfinite(alternative), alternative - disparity, np.float32(0))
         apart = np.abs(period) * spacing >= MIN_PERIOD_PX
         nearer = apart & (np.abs(alternative - slope) < np.abs(disparity - slope))  # False where NaN
+        if nearer.any():  # a surface moves to it whole, where the views fit it about as well on most of it
+            at_alternative = self._least_cv_near(alternative, nearer)[0]
+            fits = nearer & (at_alternative <= PERIOD_FIT * self._least_cv_near(disparity, nearer)[0]
+                             + MIN_ANGULAR_CV)
+            nearer = _by_surface(fits, nearer)
         best = np.where(nearer, alternative, disparity).astype(np.float32)
         if not periods:
             return best
@@ -516,7 +528,7 @@ class DepthGuide:
             tried &= undecided
             at_candidate, candidate = self._least_cv_near(candidate, tried, reach=PERIOD_SEARCH)
             fits = tried & (at_candidate <= PERIOD_MAX_CV) & (at_candidate <= PERIOD_FIT * at_estimate + MIN_ANGULAR_CV)
-            fits &= _most_around(fits)  # a surface's fit, not one pixel's chance
+            fits = _by_surface(fits, tried)  # a surface's fit, not one pixel's chance
             in_focus = np.abs(candidate - slope) * spacing < IN_FOCUS_PX
             best[fits] = np.where(in_focus, np.float32(slope), candidate)[fits]
             undecided &= ~fits
@@ -544,7 +556,7 @@ class DepthGuide:
             self._period = filled.astype(np.float32)
         return self._period.copy()
 
-    def _least_cv_near(self, disparity, where, reach=1, step=0.25):
+    def _least_cv_near(self, disparity, where, reach=1, step=PERIOD_STEP):
         """The least angular variation of the views (:meth:`angular_cv`'s measure, its dark floor the light
         field's brightest luminance rather than the refocus's) within ``reach`` steps of ``step`` of each
         pixel's own ``disparity`` (on multiples of ``step``) on ``where`` (inf elsewhere), and the disparity
@@ -844,6 +856,16 @@ def _unit_scaled(lf):
     return scaled, unit
 
 
-def _most_around(mask):
-    """Where most of each pixel's 3x3 neighbourhood (itself included) is ``mask``."""
-    return ndimage.uniform_filter(mask.astype(np.float32), 3, mode="nearest") > 0.5
+def _by_surface(mask, among):
+    """The connected regions of ``among`` (8-connected) where most of their pixels are ``mask``, whole: a
+    surface's choice, not each pixel's."""
+    labels, count = ndimage.label(among, structure=np.ones((3, 3), bool))
+    if count == 0:
+        return np.zeros(among.shape, bool)
+    votes = np.bincount(labels.ravel(), weights=mask.ravel().astype(np.float64), minlength=count + 1)
+    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    won = votes > 0.5 * sizes
+    won[0] = False
+    return won[labels]
+
+

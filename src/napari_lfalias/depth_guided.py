@@ -472,26 +472,26 @@ class DepthGuide:
         """The estimate, with the :attr:`alternative` where that is nearer ``slope``: of two disparities the
         views cannot tell apart, the one whose rendering changes the naive refocus least.
 
-        A surface (a connected region of the pixels whose alternative is nearer) moves to its alternative
-        whole, where on most of it the views vary there about as little as at the estimate
-        (:data:`PERIOD_FIT`), else not at all: taken pixel by pixel wherever the estimate found one, the
-        second fit split a checker at -4.8 by the phase of its texture (fresh scene 505 at slope 5: 59 % of
-        it at 7.2, where its views varied 7x more), and the rendering drew it at two blurs, 3.2 dB below the
-        naive refocus on its clean pixels. Two fits a period apart (at least :data:`MIN_PERIOD_PX` of motion per view step) mean that every
-        whole number of periods apart may fit too, and where the two are two periods apart, so may the half
-        numbers: the pixel moves to the one of those (up to :data:`PERIODS_REACH`) nearest ``slope``, the
-        nearest half number first, then the nearest whole one, where the views agree there (found within
-        :data:`PERIOD_SEARCH` steps of it) about as well as at the estimate (:data:`PERIOD_FIT`) and
-        closely (:data:`PERIOD_MAX_CV`), on most of its surface (as above); in focus there, it is put at the
-        slope. A pixel without an alternative of its own takes its neighbours' period (:meth:`_periods`).
-        ``periods=False``: only the two fits. Measured (unseen, stop 24's code): a checker wall at 3.8
-        estimated two periods off was flattened, 21 dB below the naive refocus at 2.9 (fresh scene 1206;
-        +0.1 dB with the periods); stripes at 4.5 whose two fits lay a period either side, 9.6 dB below it on
-        the clean pixels at 4.9 (1119; +1.0). A fine checker wall in focus at -2.4, estimated 9.6 with its
-        second fit at 3.6, was rendered 6 px per view step out of focus, 4.4 dB below the naive refocus (fresh
-        scene 700). On HCI antinous's 3x3 sub-grid at -1.53 the periods put the image 3.1 dB below it, both
-        without the check of the views and with it when the occlusion order was judged with these pixels
-        (it flipped): :meth:`larger_first` is judged from the estimate, not with them.
+        A surface (a connected region of the pixels whose alternative is nearer) moves to its alternative whole,
+        where on most of it the views vary there about as little as at the estimate (:data:`PERIOD_FIT`), else
+        not at all: taken pixel by pixel wherever the estimate found one, the second fit split a checker at -4.8
+        by the phase of its texture (fresh scene 505 at slope 5: 59 % of it at 7.2, where its views varied 7x
+        more), and the rendering drew it at two blurs, 3.2 dB below the naive refocus on its clean pixels. Two
+        fits a period apart (at least :data:`MIN_PERIOD_PX` of motion per view step) mean that every whole
+        number of periods apart may fit too, and where the two are two periods apart, so may the half numbers:
+        the pixel moves to the one of those (up to :data:`PERIODS_REACH`) nearest ``slope``, the nearest half
+        number first, then the nearest whole one, where the views agree there (found within
+        :data:`PERIOD_SEARCH` steps of it) about as well as at the estimate (:data:`PERIOD_FIT`) and closely
+        (:data:`PERIOD_MAX_CV`), on most of its surface (as above); in focus there, it is put at the slope. A
+        pixel without an alternative of its own takes its neighbours' period (:meth:`_periods`).
+        ``periods=False``: only the two fits. Measured (unseen, stop 24's code): a checker wall at 3.8 estimated
+        two periods off was flattened, 21 dB below the naive refocus at 2.9 (fresh scene 1206; +0.1 dB with the
+        periods); stripes at 4.5 whose two fits lay a period either side, 9.6 dB below it on the clean pixels at
+        4.9 (1119; +1.0). A fine checker wall in focus at -2.4, estimated 9.6 with its second fit at 3.6, was
+        rendered 6 px per view step out of focus, 4.4 dB below the naive refocus (fresh scene 700). On HCI
+        antinous's 3x3 sub-grid at -1.53 the periods put the image 3.1 dB below it, both without the check of
+        the views and with it when the occlusion order was judged with these pixels (it flipped):
+        :meth:`larger_first` is judged from the estimate, not with them.
         """
         disparity, alternative = self.estimate[0], self.alternative
         if alternative is None:
@@ -503,10 +503,19 @@ class DepthGuide:
         period = np.where(np.isfinite(alternative), alternative - disparity, np.float32(0))
         apart = np.abs(period) * spacing >= MIN_PERIOD_PX
         nearer = apart & (np.abs(alternative - slope) < np.abs(disparity - slope))  # False where NaN
+        at_estimate = np.full(disparity.shape, np.inf, np.float32)  # the views' fit there, made once a pixel
+        asked = np.zeros(disparity.shape, bool)
+
+        def fit_at_estimate(where):
+            todo = where & ~asked
+            if todo.any():
+                at_estimate[todo] = self._least_cv_near(disparity, todo)[0][todo]
+                asked[todo] = True
+            return at_estimate
+
         if nearer.any():  # a surface moves to it whole, where the views fit it about as well on most of it
             at_alternative = self._least_cv_near(alternative, nearer)[0]
-            fits = nearer & (at_alternative <= PERIOD_FIT * self._least_cv_near(disparity, nearer)[0]
-                             + MIN_ANGULAR_CV)
+            fits = nearer & (at_alternative <= PERIOD_FIT * fit_at_estimate(nearer) + MIN_ANGULAR_CV)
             nearer = _by_surface(fits, nearer)
         best = np.where(nearer, alternative, disparity).astype(np.float32)
         if not periods:
@@ -522,7 +531,7 @@ class DepthGuide:
         closer[1] &= wholes != halves
         if not (closer[0] | closer[1]).any():
             return best
-        at_estimate = self._least_cv_near(disparity, closer[0] | closer[1])[0]
+        fit_at_estimate(closer[0] | closer[1])
         undecided = np.ones(best.shape, bool)
         for candidate, tried in zip(candidates, closer):
             tried &= undecided
@@ -867,5 +876,3 @@ def _by_surface(mask, among):
     won = votes > 0.5 * sizes
     won[0] = False
     return won[labels]
-
-

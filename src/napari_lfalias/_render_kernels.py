@@ -576,8 +576,8 @@ def _mark_taps(taps, first, out):
 
 
 @njit(cache=True)
-def _composite_view(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, num, den, blurred,
-                    trust, covers, seen, scratch, whole, i, origin):
+def _composite_view(values, weights, bins, confidence, order, occluders, taps, box_taps, fill, has_fill, num, den,
+                    blurred, trust, covers, seen, scratch, whole, i, origin):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -604,7 +604,10 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
     image's edge elsewhere (the lenslet captures at slope +-5, the
     camera-array noise wall at slope -1). Layers hold unit coverage; the
     view's cell at a pixel counts by the weight of the view's sample there. A bin in focus (no blur) is its samples as
-    they are: it is added without a layer.
+    they are: it is added without a layer. Which bins are blurred is
+    ``taps (K, 4)``'s; the box each is blurred by in this view is
+    ``box_taps (K, 4)``'s (narrowed by the blur the view's resampling gave
+    it, :func:`napari_lfalias.render._view_taps`).
 
     ``covers (K, Y, X)``, ``seen (Y, X)`` and ``scratch (3, Y * X * (C + 3))``
     are scratch: each bin's blurred coverage (within its reach), the share
@@ -644,8 +647,8 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
         y_lo, y_hi, x_lo, x_hi = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         if y_hi < 0:
             continue
-        ny, fy, nx, fx = taps[k, 0], taps[k, 1], taps[k, 2], taps[k, 3]
-        blur = ny > 0 or fy > 0.0 or nx > 0 or fx > 0.0
+        blur = taps[k, 0] > 0 or taps[k, 1] > 0.0 or taps[k, 2] > 0 or taps[k, 3] > 0.0
+        ny, fy, nx, fx = box_taps[k, 0], box_taps[k, 1], box_taps[k, 2], box_taps[k, 3]
         reach_y = int(ny) + 1 if blur else 0
         reach_x = int(nx) + 1 if blur else 0
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
@@ -775,14 +778,15 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, f
 
 
 @njit(cache=True, parallel=True)
-def composite_views(values, weights, bins, confidence, order, occluders, taps, fill, has_fill, whole, origin,
-                    n_chunks, num, den, blurred, trust):
+def composite_views(values, weights, bins, confidence, order, occluders, taps, view_taps, fill, has_fill, whole,
+                    origin, n_chunks, num, den, blurred, trust):
     """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
     the coverage of blurred bins ``blurred`` and the confidence-weighted coverage ``trust``
     (each ``(n_chunks, Y, X)``), one chunk of views per thread.
 
     ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
-    :func:`napari_lfalias.baselines._box_taps`); ``order``: bins front to back; ``occluders``: for each
+    :func:`napari_lfalias.baselines._box_taps`), ``view_taps (n, K, 4)``: the box each view blurs it by
+    (see :func:`_composite_view`); ``order``: bins front to back; ``occluders``: for each
     position in ``order``, the last position whose bins hide it (-1: none); ``fill (Y, X, C)`` and
     ``has_fill (Y, X)``: the in-focus surface behind occluders' edges; ``whole``, ``origin``: the views
     over the whole grid and where this window lies in it, for the stand-ins of samples a view lacks (see
@@ -794,6 +798,6 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, f
         seen = np.empty((n_rows, n_cols), np.float32)
         scratch = np.empty((3, n_rows * n_cols * (values.shape[3] + 3)), np.float32)
         for i in range(chunk, n, n_chunks):
-            _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, fill, has_fill,
-                            num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch, whole, i,
-                            origin)
+            _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, view_taps[i],
+                            fill, has_fill, num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch,
+                            whole, i, origin)

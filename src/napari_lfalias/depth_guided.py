@@ -85,15 +85,19 @@ __all__ = ["DepthGuide", "aperture_radius", "ghosts_reaching", "moved_edges", "p
 THRESHOLD = 0.02
 #: The default reduction gives the rendering to the flagged pixels (predicted error above ``T``) and to
 #: the pixels connected to them whose predicted error exceeds this share of ``T`` (hysteresis, as in
-#: Canny's edge detector, at its usual 2:1): an aliased region's fringe below what a viewer perceives is
-#: still closer to the dense aperture rendered, and isolated pixels below ``T`` stay the naive refocus.
+#: Canny's edge detector, at 4:1): an aliased region's fringe below what a viewer perceives is still
+#: closer to the dense aperture rendered, and isolated pixels below ``T`` stay the naive refocus.
 #: Measured (results/accuracy.md notes): the tune cases gain +5.6 (1: flagged only), +7.3 (0.5), +8.7
 #: (0.25) and +9.7 dB (0.125) where aliased, none below the naive refocus; they cannot tell these apart
-#: on harm, and the unseen cases can: 0.25 and 0.125 cost more than 0.1 dB on real sub-grids' clean
-#: pixels, 0.5 does not. The fringe also needs the predicted error to exceed the rendering's
+#: on harm. While the renderer blurred the views' samples twice (render._view_taps), 0.25 cost one real
+#: sub-grid 0.26 dB on its clean pixels, and 0.5 was kept; since, 0.5 -> 0.25 gives tune +6.9 -> +9.0,
+#: holdout +6.4 -> +8.3, real +4.1 -> +4.3 dB where aliased, none of them more than 0.05 dB below naive;
+#: on the 1072 random slopes of fresh-a..l the two changes together gave +4.4 -> +5.2 dB where aliased,
+#: 10 slopes below naive - 0.1 dB overall rather than 11, 13 on clean pixels rather than 16. The fringe
+#: also needs the predicted error to exceed the rendering's
 #: :meth:`DepthGuide.edge_spread` (results/accuracy.md notes: without it, an outline the estimate put 3-4 px
 #: off cost a holdout case 0.22 dB on its clean pixels; the tune cases' gain where aliased +7.25 -> +7.09).
-REPLACE_FRACTION = 0.5
+REPLACE_FRACTION = 0.25
 #: Views whose luminance varies less than this (std / mean) agree: the pixel is in focus.
 MIN_ANGULAR_CV = 0.01
 #: Floor of the luminance a difference is divided by, as a fraction of the brightest.

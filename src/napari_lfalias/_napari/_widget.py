@@ -717,11 +717,13 @@ class AliasingWidget(QWidget):
             self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels from levels up "
                              f"to {highest}")
             return
+        from ..depth_guided import REPLACE_FRACTION
+
         self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
         self._show_mask_source(params.method, slope)
         self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels take what a dense "
-                         "aperture records (the flagged ones, magenta, and those next to them above T/2 where the "
-                         "rendering does not hinge on its depth edges); the "
+                         f"aperture records (the flagged ones, magenta, and those next to them above "
+                         f"T/{1 / REPLACE_FRACTION:g} where the rendering does not hinge on its depth edges); the "
                          "whole anti-aliased rendering goes to a hidden layer")
 
     def _show_disparity(self, estimate):

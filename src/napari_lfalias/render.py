@@ -156,6 +156,9 @@ def _narrowed_width(width, phi):
     the box the kernels apply (:func:`~napari_lfalias.baselines._box_taps`)
     is a discrete one, and the bilinear resampling multiplies it by
     ``|1 - phi + phi exp(2 pi i nu)|``. Widths below 1 are no box at all.
+    The box reaches no further than that of ``width`` itself: the grid's
+    margin and the renderings of some pixels only are made for that reach
+    (:func:`_reach`).
     """
     from .baselines import _box_taps
 
@@ -166,6 +169,8 @@ def _narrowed_width(width, phi):
     matched = math.sqrt(max(width * width - 12.0 * phi * (1.0 - phi), 0.0))
     candidates = np.arange(max(matched - 0.6, 0.0), max(matched, 1.0) + 0.6, 0.01)
     taps = np.array([_box_taps(c) for c in candidates])
+    within = taps[:, 0] <= _box_taps(width)[0]
+    candidates, taps = candidates[within], taps[within]
     n, f = taps[:, :1], taps[:, 1:]
     angle = np.pi * nu[None, :]
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -198,12 +198,13 @@ def _view_taps(taps, slope, positions):
     offset = np.mod(slope * np.asarray(positions, np.float64), 1.0)
     offset = np.round(np.minimum(offset, 1.0 - offset), 3)  # the resampling blurs alike at phi and 1 - phi
     out = np.zeros((len(positions),) + taps.shape)
-    for k, (n_y, f_y, n_x, f_x) in enumerate(taps):
-        if not np.any(taps[k] != 0):
-            continue
-        widths = (round(2 * n_y + 1 + 2 * f_y, 3), round(2 * n_x + 1 + 2 * f_x, 3))
-        for i, (phi_y, phi_x) in enumerate(offset):
-            out[i, k] = (*_box_taps(_narrowed_width(widths[0], phi_y)), *_box_taps(_narrowed_width(widths[1], phi_x)))
+    for axis in (0, 1):  # the views share a few offsets along each axis (a row or column of the grid each)
+        phis, view_phi = np.unique(offset[:, axis], return_inverse=True)
+        for k, (n, f) in enumerate(taps[:, 2 * axis:2 * axis + 2]):
+            if np.any(taps[k] != 0):
+                width = round(2 * n + 1 + 2 * f, 3)
+                boxes = np.array([_box_taps(_narrowed_width(width, float(phi))) for phi in phis])
+                out[:, k, 2 * axis:2 * axis + 2] = boxes[view_phi]
     return out
 
 

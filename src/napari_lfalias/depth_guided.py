@@ -535,7 +535,7 @@ class DepthGuide:
         closer[1] &= wholes != halves
         if not (closer[0] | closer[1]).any():
             return best
-        fit_at_estimate(closer[0] | closer[1])
+        at_estimate = fit_at_estimate(closer[0] | closer[1])
         undecided = np.ones(best.shape, bool)
         for candidate, tried in zip(candidates, closer):
             tried &= undecided

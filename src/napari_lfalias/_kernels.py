@@ -156,8 +156,8 @@ def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, ou
 
 @njit(cache=True, parallel=True)
 def rec709(colour, weights, out):
-    """``out (m,)`` = ``colour (m, 3) @ weights (3,)`` in float32, summed left to right as numpy's matmul sums
-    them, in blocks of pixels over the cores."""
+    """``out (m,)`` = ``colour (m, 3) @ weights (3,)`` in float32, summed left to right (no fused
+    multiply-add), in blocks of pixels over the cores."""
     m = colour.shape[0]
     block = 1 << 14
     for start in prange((m + block - 1) // block):

@@ -12,6 +12,26 @@ __all__ = ["LightField", "regular_positions", "REC709"]
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 
+def _rec709(colour):
+    """The luminance ``(..., 1)`` float32 of ``colour (..., 3)``, on every core.
+
+    The same float32 sums (``R * 0.2126 + G * 0.7152 + B * 0.0722``, left to
+    right) whatever the array's layout or chunks: numpy's matmul rounds
+    contiguous and strided data differently, and differently again by
+    version, so an estimate of a light field read from a TIFF (its colour
+    planes moved last: a strided array) or loaded lazily would differ in
+    the last bits from that of the array that was saved.
+    """
+    from .refocus import _run
+
+    lum = np.empty(colour.shape[:-1] + (1,), np.float32)
+    # a strided array one row of views at a time: a contiguous copy of a row, not of the whole light field
+    parts = [(colour, lum)] if colour.flags.c_contiguous or colour.ndim < 3 else zip(colour, lum)
+    for part, out in parts:
+        _run("rec709", np.ascontiguousarray(part, np.float32).reshape(-1, 3), REC709, out.reshape(-1))
+    return lum
+
+
 def regular_positions(n_rows, n_cols):
     """View positions of a regular ``n_rows x n_cols`` grid, centred on 0.
 
@@ -241,13 +261,14 @@ class LightField:
         if self.n_channels == 1:
             return self
         data = self.data if self.is_lazy else np.asarray(self.data)
-        if not self.is_lazy and data.dtype == np.float32 and data.shape[-1] == 3 and data.flags.c_contiguous:
-            from .refocus import _run
-
-            lum = np.empty(data.shape[:-1] + (1,), np.float32)  # data @ REC709, the same sums, on every core
-            _run("rec709", data.reshape(-1, data.shape[-1]), REC709, lum.reshape(-1))
+        if data.shape[-1] != 3:
+            lum = (data @ REC709)[..., None]  # numpy's error for a channel count Rec. 709 has no weights for
+        elif self.is_lazy:
+            data = data.rechunk({data.ndim - 1: -1})
+            lum = data.map_blocks(_rec709, chunks=data.chunks[:-1] + ((1,),), dtype=np.float32)
         else:
-            lum = (data @ REC709)[..., None]
+            lum = _rec709(data)
+        return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
         return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
 
     def subset(self, rows=slice(None), cols=slice(None)):

@@ -10,10 +10,13 @@ does not have is left out, so the script times older source trees too
 
 Run::
 
-    .venv/bin/python benchmarks/profile_reduce.py [--repeats 3] [--estimate est.pkl]
+    .venv/bin/python benchmarks/profile_reduce.py [--repeats 3] [--estimate est.pkl] \
+        [--function antialiased_refocus]
 
 ``--estimate`` keeps the estimate in a pickle (made when missing): the
-estimate takes a second, the scene most of a minute.
+estimate takes a second, the scene most of a minute. ``--function
+antialiased_refocus`` times the renderer alone (every pixel rendered, the
+same estimate given) instead of the default reduction.
 """
 
 from __future__ import annotations
@@ -134,18 +137,22 @@ def main():
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--slopes", type=float, nargs="+", default=[4.0, -4.0])
     parser.add_argument("--estimate", help="pickle of the estimate (made when missing)")
+    parser.add_argument("--function", choices=("reduce_aliasing", "antialiased_refocus"), default="reduce_aliasing",
+                        help="the call to time (both with the estimate given)")
     args = parser.parse_args()
+    call = getattr(lfa, args.function)
     lf, estimate = scene_and_estimate(args.estimate, args.size, args.views)
     clock = StageClock()
     clock.install()
-    print(f"napari_lfalias from {Path(lfa.__file__).parent}; {args.views}x{args.views}x{args.size}x{args.size}x3")
+    print(f"{args.function}, napari_lfalias from {Path(lfa.__file__).parent}; "
+          f"{args.views}x{args.views}x{args.size}x{args.size}x3")
     for slope in args.slopes:
-        lfa.reduce_aliasing(lf, slope, disparity=estimate)  # numba compiles, caches warm
+        call(lf, slope, disparity=estimate)  # numba compiles, caches warm
         per_run, loads = [], []
         for _ in range(args.repeats):
             clock.totals.clear()
             start = _now()
-            lfa.reduce_aliasing(lf, slope, disparity=estimate)
+            call(lf, slope, disparity=estimate)
             whole = _now() - start
             loads.append(os.getloadavg()[0])
             run = dict(clock.totals)

@@ -64,7 +64,7 @@ STAGES = [
     ("render", "Layers.differs_from", "differs from"),
     ("render", "SlopeRenderer.composite", "composite (python)"),
     ("_render_kernels", "composite_views", "composite kernel"),
-    ("reduce", "_with_fringe", "fringe"),
+    ("reduce", "_replaced", "replaced: score and fringe"),
     ("depth_guided", "DepthGuide.blend_weight", "blend"),
     ("depth_guided", "DepthGuide.blend", "blend"),
     ("reduce", "levels_from_disparity", "level map"),

@@ -8,7 +8,7 @@ Figure 6 b2, slope 4: the brick wall behind it has copies 8 px apart and
 its mortar lines stripe the refocus), waits for the disparity estimate and
 presses "Reduce aliasing". The whole window is saved in the widget's
 default layout: the striped naive refocus with the pixels the reduction
-replaced as a translucent magenta mask, and the reduced image beside it
+flagged as a translucent magenta mask, and the reduced image beside it
 (the wall clean, the cube untouched); the Cv, disparity, level map and
 anti-aliased layers stay hidden, as they open. It prints how far the two
 images shown lie from the scene's dense-aperture reference (PSNR where the

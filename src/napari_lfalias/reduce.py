@@ -342,10 +342,11 @@ def _keep_in_focus(lf, slope, level_map, refocused, renderings, floor):
 
 
 def _reduce_depth_guided(detector, slope, threshold):
-    """``method="depth"``: the aliased pixels take the dense-aperture rendering (:mod:`.depth_guided`),
-    and so do the pixels connected to them whose predicted error exceeds
-    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold
-    and does not depend on where the depth edges are (:func:`_with_fringe`).
+    """``method="depth"``: the pixels whose cautious score exceeds the threshold take the dense-aperture
+    rendering (:mod:`.depth_guided`), and so do the pixels connected to them whose score exceeds
+    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and does not depend on where
+    the depth edges are (:func:`_replaced`). The detection returned is the plain predicted error
+    (:meth:`~napari_lfalias.depth_guided.DepthGuide.predicted_errors`).
 
     Yields ``(done, 4)`` after the disparity, the naive refocus, the
     detection (which renders, unless the views agree everywhere) and the
@@ -364,7 +365,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     yield (2, 4)
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
-    replaced = _with_fringe(detection, guide, slope)
+    replaced = _replaced(guide, slope, refocused, detection.threshold)
     if replaced.any():
         weight = guide.blend_weight(replaced)
         image = guide.blend(refocused, guide.scored_rendering(slope).image, replaced, weight)
@@ -378,18 +379,22 @@ def _reduce_depth_guided(detector, slope, threshold):
     return Reduction(image, level, detection.cv, refocused.copy(), [detection])
 
 
-def _with_fringe(detection, guide, slope):
-    """The flagged pixels and their fringe (hysteresis): the pixels connected to them whose predicted error
-    exceeds :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and the rendering's
+def _replaced(guide, slope, naive, threshold):
+    """The pixels the depth-guided reduction replaces: those whose cautious score
+    (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`) exceeds the threshold, and their fringe
+    (hysteresis): the pixels connected to them whose score exceeds
+    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and the rendering's
     dependence on where the depth edges are (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`).
     Below the threshold the rendering is trusted only where the naive refocus is farther from it than the
     rendering is from itself with the edges moved."""
     from .depth_guided import REPLACE_FRACTION
 
-    if not detection.mask.any():
-        return detection.mask.copy()
-    fringe = (detection.cv > REPLACE_FRACTION * detection.threshold) & (guide.edge_spread(slope) < detection.cv)
-    return ndimage.binary_propagation(detection.mask, structure=np.ones((3, 3), bool), mask=fringe)
+    score = guide.scores(slope, naive)
+    seeds = score > np.float32(threshold)
+    if not seeds.any():
+        return seeds
+    fringe = (score > np.float32(REPLACE_FRACTION * threshold)) & (guide.edge_spread(slope) < score)
+    return ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
 
 
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,

@@ -48,8 +48,9 @@ TOOLTIPS = {
               "Monte Carlo Cv (the paper): N random patterns, seeded.",
     "mask": "Which detection the magenta mask over the refocused image shows now: the live Cv "
             "(exact, or Monte Carlo when that method is chosen) as the focus moves, or after Reduce "
-            "aliasing with the dense-aperture method the pixels it replaced (their predicted error "
-            "against a dense aperture exceeds T), until the focus moves.",
+            "aliasing with the dense-aperture method the pixels it found aliased (their predicted error "
+            "against a dense aperture exceeds T; it replaced those its rendering is sure of, and their "
+            "fringe: the level layer shows which), until the focus moves.",
     "disparity": "The light field's disparity (pixels per view step), estimated once per light field "
                  "in the background for the dense-aperture method, in five stages; Cancel stops it "
                  "between two of them (Reduce aliasing starts it again). Shown in the hidden layer "

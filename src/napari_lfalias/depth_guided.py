@@ -22,7 +22,9 @@ sparse refocus and what a dense aperture would record.
   aliasing"), and the views really disagree there (their angular
   coefficient of variation exceeds :data:`MIN_ANGULAR_CV`: a pixel whose
   views agree is in focus, whatever a wrong disparity says)
-  (:meth:`DepthGuide.predicted_errors`).
+  (:meth:`DepthGuide.predicted_errors`), unless the cautious score
+  below finds next to nothing there (a quarter of ``T``, what the
+  reduction's fringe asks of a pixel; :meth:`DepthGuide.flagged`).
 - **Which pixels the reduction replaces** is decided more cautiously
   (:meth:`DepthGuide.scores`): a detector should find the aliasing, a
   reduction must not make a pixel worse. Until stop 32 one cautious score
@@ -30,11 +32,14 @@ sparse refocus and what a dense aperture would record.
   (fresh-a, 48 slopes / holdout, 16), the plain prediction detects better:
   ROC AUC 0.949 / 0.968 against 0.908 / 0.944, F1 at ``T`` 0.73 / 0.66
   against 0.61 / 0.60 (the cautious score's precision was 0.90, its recall
-  0.53). Over every slope of the benchmark (means per slope, the images
-  unchanged): fresh-o, first run at the start of stop 32 and not used for
-  the choice, AUC 0.90 -> 0.93, F1 0.56 -> 0.62; tune 0.96 / 0.64 ->
-  0.98 / 0.71, holdout 0.92 / 0.62 -> 0.94 / 0.68, real 0.84 / 0.41 ->
-  0.91 / 0.45. Even the rendering with the *true* disparity predicts the
+  0.53). Alone, though, the prediction flagged pixels on 4 of fresh-a's 23
+  slopes with nothing aliased (F1 1 -> 0 there; over the benchmark's 388
+  such slopes mean F1 0.63 -> 0.41); asking the cautious score for a
+  quarter of ``T`` too leaves 1, and mean F1 over all of fresh-a's slopes
+  0.63 (cautious score) -> 0.66 (prediction) -> 0.69 (both), holdout
+  0.62 -> 0.68 -> 0.68 (a region the cautious score confirmed anywhere:
+  0.68 / 0.66). The benchmark's tables give every split (results/accuracy.md
+  notes, stop 32). Even the rendering with the *true* disparity predicts the
   aliasing only to F1 0.77 / 0.72 at ``T`` on those fresh-a / holdout
   slopes: the renderer's own error near ``T`` flips pixels, so no
   threshold on a rendering's prediction reaches an F1 of 0.8 there (at
@@ -686,6 +691,24 @@ class DepthGuide:
         error = predicted_error(naive, self.scored_rendering(slope).image).astype(np.float32)
         error[agree] = 0.0
         return error
+
+    def flagged(self, slope, threshold=THRESHOLD):
+        """The pixels the detection flags at ``slope``, ``(Y, X)`` bool: those whose
+        :meth:`predicted_errors` of the naive refocus exceed ``threshold`` and whose cautious
+        :meth:`scores` exceeds :data:`REPLACE_FRACTION` of it (what the reduction's fringe asks of a
+        pixel): where the cautious score finds next to nothing, the prediction is the rendering's doubt
+        (a misplaced edge, a wrong local mean), not aliasing. Measured (module notes): of the slopes with
+        no aliased pixel the prediction alone flagged some on 4 in 23 (fresh-a), this rule on 1."""
+        slope = _validate.finite_float("slope", slope)
+        above = self.predicted_errors(slope, self.naive(slope)) > np.float32(threshold)
+        if not above.any():
+            return above
+        return above & (self.cautious_scores(slope) > np.float32(REPLACE_FRACTION * threshold))
+
+    def cautious_scores(self, slope):
+        """:meth:`scores` of the naive refocus at ``slope`` (kept per slope)."""
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "scores", lambda: self.scores(slope, self.naive(slope)))
 
     def scores(self, slope, naive):
         """Predicted error of ``naive`` at ``slope`` (the least against the rendering and its

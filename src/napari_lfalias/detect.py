@@ -279,7 +279,10 @@ class Detection:
         sampling patterns (Eq. 7); 0 where it was not evaluated.
     mask : ndarray, shape (Y, X), bool
         Aliased pixels: ``cv > threshold`` (``threshold_scale="cv"``) or
-        ``angular_cv > threshold`` (``"angular"``).
+        ``angular_cv > threshold`` (``"angular"``). For ``method="depth"``,
+        ``cv`` is the predicted error and the mask where it exceeds the
+        threshold and the reduction's cautious score a quarter of it
+        (:meth:`~napari_lfalias.depth_guided.DepthGuide.flagged`).
     cv_scale : ndarray, shape (Y, X), float32
         ``sqrt(c)`` of each pixel (:func:`variance_factors`): ``cv`` is
         ``cv_scale`` times the angular coefficient of variation.
@@ -329,9 +332,15 @@ class Detection:
             If the new threshold is lower where pixels were not evaluated
             (tiles skipped as provably below the old threshold, or pixels
             outside the region): their Cv was never computed. Detect again
-            (an :class:`AliasingDetector` keeps what it computed).
+            (an :class:`AliasingDetector` keeps what it computed). Also for a
+            ``method="depth"`` detection, whose mask is not a threshold of
+            its ``cv`` alone.
         """
         threshold = _validate.positive_float("threshold", threshold)
+        if self.params.get("method") == "depth":
+            raise ParameterError("a method='depth' detection's mask needs the reduction's cautious score too "
+                                 "(DepthGuide.flagged), not the predicted error alone: call detect again (an "
+                                 "AliasingDetector keeps the renderings, so a new threshold costs little)")
         scale = self.threshold_scale if threshold_scale is None else threshold_scale
         _validate.one_of("threshold_scale", scale, THRESHOLD_SCALES)
         lowered = _mask_threshold(threshold, scale, self.cv_scale) < _mask_threshold(
@@ -744,7 +753,7 @@ class AliasingDetector:
         score = np.where(evaluated, score, np.float32(0)).astype(np.float32)
         ones = np.ones(shape, np.float32)
         params = {"method": "depth", "gamma": None, "n_patterns": None, "seed": None}
-        mask = score > np.float32(threshold)
+        mask = self.guide.flagged(slope, threshold) & evaluated
         return Detection(score, mask, ones, evaluated, threshold, "cv", slope, 0, params)
 
     # -- the public entry point ----------------------------------------------------------

@@ -365,7 +365,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     yield (2, 4)
     detection = detector.detect(slope, threshold=threshold, method="depth")
     yield (3, 4)
-    replaced = _replaced(guide, slope, refocused, detection.threshold)
+    replaced = _replaced(guide, slope, detection.threshold)
     if replaced.any():
         weight = guide.blend_weight(replaced)
         image = guide.blend(refocused, guide.scored_rendering(slope).image, replaced, weight)
@@ -379,7 +379,7 @@ def _reduce_depth_guided(detector, slope, threshold):
     return Reduction(image, level, detection.cv, refocused.copy(), [detection])
 
 
-def _replaced(guide, slope, naive, threshold):
+def _replaced(guide, slope, threshold):
     """The pixels the depth-guided reduction replaces: those whose cautious score
     (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`) exceeds the threshold, and their fringe
     (hysteresis): the pixels connected to them whose score exceeds
@@ -389,7 +389,7 @@ def _replaced(guide, slope, naive, threshold):
     rendering is from itself with the edges moved."""
     from .depth_guided import REPLACE_FRACTION
 
-    score = guide.scores(slope, naive)
+    score = guide.cautious_scores(slope)
     seeds = score > np.float32(threshold)
     if not seeds.any():
         return seeds

@@ -38,8 +38,8 @@ sparse refocus and what a dense aperture would record.
   quarter of ``T`` too leaves 1, and mean F1 over all of fresh-a's slopes
   0.63 (cautious score) -> 0.66 (prediction) -> 0.69 (both), holdout
   0.62 -> 0.68 -> 0.68 (a region the cautious score confirmed anywhere:
-  0.68 / 0.66). The benchmark's tables give every split (results/accuracy.md
-  notes, stop 32). Even the rendering with the *true* disparity predicts the
+  0.68 / 0.66). On fresh-o, not used for the choice, mean AUC / F1 0.90 /
+  0.56 -> 0.93 / 0.64; every split in results/accuracy.md (notes, stop 32). Even the rendering with the *true* disparity predicts the
   aliasing only to F1 0.77 / 0.72 at ``T`` on those fresh-a / holdout
   slopes: the renderer's own error near ``T`` flips pixels, so no
   threshold on a rendering's prediction reaches an F1 of 0.8 there (at

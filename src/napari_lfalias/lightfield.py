@@ -269,7 +269,6 @@ class LightField:
         else:
             lum = _rec709(data)
         return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
-        return LightField._derived(lum, self.positions, self.meta, self.weights, self._nonfinite)
 
     def subset(self, rows=slice(None), cols=slice(None)):
         """Return the light field of a sub-grid of views, keeping their positions.

@@ -699,11 +699,15 @@ class DepthGuide:
         pixel): where the cautious score finds next to nothing, the prediction is the rendering's doubt
         (a misplaced edge, a wrong local mean), not aliasing. Measured (module notes): of the slopes with
         no aliased pixel the prediction alone flagged some on 4 in 23 (fresh-a), this rule on 1."""
-        slope = _validate.finite_float("slope", slope)
-        above = self.predicted_errors(slope, self.naive(slope)) > np.float32(threshold)
+        above = self.refocus_errors(slope) > np.float32(threshold)
         if not above.any():
             return above
         return above & (self.cautious_scores(slope) > np.float32(REPLACE_FRACTION * threshold))
+
+    def refocus_errors(self, slope):
+        """:meth:`predicted_errors` of the naive refocus at ``slope`` (kept per slope)."""
+        slope = _validate.finite_float("slope", slope)
+        return self._kept(slope, "predicted errors", lambda: self.predicted_errors(slope, self.naive(slope)))
 
     def cautious_scores(self, slope):
         """:meth:`scores` of the naive refocus at ``slope`` (kept per slope)."""

@@ -748,7 +748,7 @@ class AliasingDetector:
             if region.dtype != np.bool_ or region.shape != shape:
                 raise ParameterError(f"region must be a boolean array of shape {shape}, got {region.dtype} "
                                      f"{region.shape}")
-        score = self.guide.predicted_errors(slope, self.guide.naive(slope))
+        score = self.guide.refocus_errors(slope)
         evaluated = np.ones(shape, bool) if region is None else region
         score = np.where(evaluated, score, np.float32(0)).astype(np.float32)
         ones = np.ones(shape, np.float32)

@@ -603,12 +603,8 @@ class DepthGuide:
         its tile of :data:`PERIOD_TILE` px where at least a tenth of the tile has one (a periodic wall's
         second fit is found on most of it, not all), else 0."""
         if self._period is None:
-            from .baselines import view_spacing
-
             disparity, alternative = self.estimate[0], self.alternative
-            spacing = view_spacing(self.lf.positions)
-            period = np.abs(np.where(np.isfinite(alternative), alternative - disparity, np.float32(0)))
-            period[period * spacing < MIN_PERIOD_PX] = 0
+            period = np.where(self._has_period(), np.abs(alternative - disparity), np.float32(0))
             filled = period.copy()
             for y in range(0, period.shape[0], PERIOD_TILE):
                 for x in range(0, period.shape[1], PERIOD_TILE):

@@ -39,7 +39,8 @@ sparse refocus and what a dense aperture would record.
   0.63 (cautious score) -> 0.66 (prediction) -> 0.69 (both), holdout
   0.62 -> 0.68 -> 0.68 (a region the cautious score confirmed anywhere:
   0.68 / 0.66). On fresh-o, not used for the choice, mean AUC / F1 0.90 /
-  0.56 -> 0.93 / 0.64; every split in results/accuracy.md (notes, stop 32). Even the rendering with the *true* disparity predicts the
+  0.56 -> 0.93 / 0.64; every split in results/accuracy.md (notes, stop
+  32). Even the rendering with the *true* disparity predicts the
   aliasing only to F1 0.77 / 0.72 at ``T`` on those fresh-a / holdout
   slopes: the renderer's own error near ``T`` flips pixels, so no
   threshold on a rendering's prediction reaches an F1 of 0.8 there (at
@@ -297,9 +298,10 @@ class DepthGuide:
         however sharp their cost: judged with them, the order was wrong on
         8 of the benchmark's 318 synthetic light fields, without them on 7
         (fresh scene 1319, a checker wall a period off on much of it: 0.52
-        dB below the naive refocus at -3.5 -> 0.15; no other changed). Judged at every slope instead, with
-        the surfaces the views show in focus put at the slope, 69 of 1072
-        slopes of the random scenes came out wrong, against 33 judged once:
+        dB below the naive refocus at -3.5 -> 0.15; no other changed).
+        Judged at every slope instead, with the surfaces the views show in
+        focus put at the slope, 69 of 1072 slopes of the random scenes came
+        out wrong, against 33 judged once:
         the pixels put at the slope make edges inside the surface they lie
         on, a fraction of a pixel high where the estimate has it nearly in
         focus (fresh scene 1418 at 5.0: 2.9 dB below the naive refocus; +0.0
@@ -320,11 +322,12 @@ class DepthGuide:
         its views fit there, counted as sure). The part of a periodic wall
         the views do not show in focus (its ring around a defocused
         occluder, where some views see the occluder) otherwise kept its
-        estimate a period off and made the edges that judged: of the
+        estimate a period off and made the edges that judged. Of the
         benchmark's 19 slopes judged this way, 8 changed order, all to the
-        true one, and one is still wrong (fresh scene 1515 at 3.8) (fresh scene 1510 at 3.9, a 6x6 checker wall
-        estimated a period off: 2.76 dB below the naive refocus -> 0.43;
-        1614 at -3.1: -0.28 -> +1.17, its clean pixels -0.91 -> +0.50).
+        true one (fresh scene 1510 at 3.9, a 6x6 checker wall estimated a
+        period off: 2.76 dB below the naive refocus -> 0.43; 1614 at -3.1:
+        -0.28 -> +1.17, its clean pixels -0.91 -> +0.50); one is still
+        wrong (fresh scene 1515 at 3.8).
         """
         if self.nearer != "auto":
             return self.nearer == "larger"

@@ -13,6 +13,7 @@ from scipy import ndimage
 
 import napari_lfalias as lfa
 from napari_lfalias import metrics
+from napari_lfalias import render as render_module
 from napari_lfalias.disparity import DisparityEstimate
 from napari_lfalias.errors import LightFieldError, ParameterError
 from napari_lfalias.render import SlopeRenderer, _in_focus_colour, _narrowed_width, _view_taps, render_dense_aperture
@@ -387,10 +388,37 @@ def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offs
     edges = np.array([-np.inf, 0.5, 3.0, np.inf])  # bins: 0 background, 1 band, 2 occluder
     bins = np.empty((1, 48, 48), np.int16)
     confidence = np.empty((1, 48, 48), np.float32)
-    view_bins(disparity, np.ones(disparity.shape, np.float32), np.array([offset]), True, 0.0, edges, bins, confidence)
+    landed = np.empty((1, 48, 48), bool)
+    view_bins(disparity, np.ones(disparity.shape, np.float32), np.array([offset]), True, 0.0, edges, bins, confidence,
+              landed)
     # the occluder's near edge lands 5 px on, the band's 1 px: the 3 px between (inset from the corners) are holes
-    uncovered = bins[0, 17:19, 20:30] if offset[0] else bins[0, 20:30, 17:19]
-    assert (uncovered == 1).all(), uncovered
+    hole = (0, slice(17, 19), slice(20, 30)) if offset[0] else (0, slice(20, 30), slice(17, 19))
+    assert (bins[hole] == 1).all(), bins[hole]
+    assert not landed[hole].any()  # what the centre of the aperture does not see
+    assert landed[0, :8].all() and landed[0, 40:].all()  # the background far from the occluder
+
+
+@pytest.mark.parametrize("wall", ["noise", "checker"])
+def test_an_in_focus_surface_the_centre_does_not_see_is_not_spread_by_the_wall_behind(monkeypatch, wall):
+    """Stripes in focus go on behind a defocused square; views beside the centre see them past the square's
+    edge. The warp gave those samples the wall behind (the centre's disparity does not hold the stripes
+    there), and the rendering spread them by the wall's blur. Counted in focus where they agree and the wall
+    does not explain them, the square's blurred band comes closer to the dense aperture's; a periodic wall,
+    whose samples agree a period off, is not taken for the stripes."""
+    layers = [(-4.0, "bricks", (0.1, 0.9, 0.05, 0.5)), (0.0, "stripes", (0.3, 0.95, 0.2, 0.7)), (4.0, wall, None)]
+    scene = layered_scene(layers, n_views=7, size=128, seed=4)
+    lf = as_user_has_it(scene.lightfield)
+    reference = scene.reference(0.0)
+    front = scene.disparity == -4.0
+    band = front & ~ndimage.binary_erosion(front, iterations=13)  # within the square's blur of its edge
+    scores = {}
+    for views in (lf.n_views + 1, render_module.DISOCCLUDED_VIEWS):  # never, as rendered
+        monkeypatch.setattr(render_module, "DISOCCLUDED_VIEWS", views)
+        image = lfa.antialiased_refocus(lf, 0.0, scene.disparity)
+        scores[views] = (metrics.psnr(image, reference, mask=band), metrics.psnr(image, reference))
+    never, rendered = scores[lf.n_views + 1], scores[render_module.DISOCCLUDED_VIEWS]
+    assert rendered[0] > never[0] + 0.5
+    assert rendered[1] > never[1]
 
 
 def test_the_fill_of_layers_in_anothers_bins_is_made_where_their_bins_differ_and_is_that_of_every_pixel():
@@ -427,10 +455,11 @@ def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     disparity = values[None].copy()
     bins = np.empty((1,) + disparity.shape, np.int16)
     confidence = np.empty((1,) + disparity.shape, np.float32)
+    landed = np.empty((1,) + disparity.shape, bool)
     # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
     # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
     view_bins(disparity, np.ones(disparity.shape, np.float32), np.zeros((1, 2)), False, 0.0, edges, bins,
-              confidence)
+              confidence, landed)
     expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
     np.testing.assert_array_equal(bins[0, 0], expected)
 

@@ -5,7 +5,12 @@
   where it lands; the nearer surface wins), holes (disocclusions) filled
   along the view's offset from the farther side; then, for every view, the
   disparity bin of the surface its sample at ``p + slope * q_i`` shows
-  (nearest pixel), and the confidence there; -1 outside the view.
+  (nearest pixel), the confidence there, and whether the centre's map
+  landed there (else the view sees what the centre does not); -1 outside
+  the view.
+- ``disoccluded_in_focus``: those samples the centre does not see, counted
+  to a surface behind the in-focus one, counted in focus where they agree
+  and their surface does not explain them.
 - ``views_differ``: where two such sets of views' bins differ.
 - ``in_focus_colour`` (``in_focus_colour_near``: for bins that another
   set's are but here and there): the colour of the in-focus background the views
@@ -24,7 +29,7 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "views_differ", "in_focus_colour", "in_focus_colour_near", "sampled_lines",
+__all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour", "in_focus_colour_near", "sampled_lines",
            "composite_views"]
 
 
@@ -159,13 +164,15 @@ def _fill_along_offset(values, confidence, bins, filled, q_y, q_x, larger_first)
 
 
 @njit(cache=True)
-def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled):
+def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled, landed):
     """Forward-warp ``disparity``, ``confidence`` and ``source_bins (Y, X)`` into the view at ``(q_y, q_x)``
     (:func:`_splat_view`), holes filled along the view's offset (:func:`_fill_along_offset`); what that
     leaves (a walk that leaves the image both ways) is filled along its row, and the rows nothing landed
-    in along the columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch."""
+    in along the columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch;
+    ``landed (Y, X)`` says where something landed (elsewhere the view sees what the centre does not)."""
     n_rows = disparity.shape[0]
     _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled)
+    landed[:, :] = filled
     _fill_along_offset(out_d, out_c, out_b, filled, q_y, q_x, larger_first)
     empty = False
     for y in range(n_rows):
@@ -208,11 +215,13 @@ def _source_bins(disparity, edges):
 
 
 @njit(cache=True)
-def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_confidence):
-    """Row ``y`` of a view's sampled bins and confidence: row ``sy`` of the warped ones at ``columns``."""
+def _sample_row(warped_bins, warped_confidence, landed, y, sy, columns, out_bins, out_confidence, out_landed):
+    """Row ``y`` of a view's sampled bins, confidence and landed flags: row ``sy`` of the warped ones at
+    ``columns``."""
     n_cols = warped_bins.shape[1]
     out_bins[y] = -1
     out_confidence[y] = 0.0
+    out_landed[y] = False
     if sy < 0 or sy >= warped_bins.shape[0]:
         return
     for x in range(out_bins.shape[1]):
@@ -224,49 +233,126 @@ def _sample_row(warped_bins, warped_confidence, y, sy, columns, out_bins, out_co
             continue
         out_bins[y, x] = b
         out_confidence[y, x] = warped_confidence[sy, sx]
+        out_landed[y, x] = landed[sy, sx]
 
 
 @njit(cache=True)
-def _shifted_bins_view(warped_bins, warped_confidence, dy, dx, out_bins, out_confidence):
+def _shifted_bins_view(warped_bins, warped_confidence, landed, dy, dx, out_bins, out_confidence, out_landed):
     """The bin ``(Y', X')`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
-    warped bins ``warped_bins``; -1 outside the view), and its confidence."""
+    warped bins ``warped_bins``; -1 outside the view), its confidence, and whether it landed there."""
     n_rows, n_cols = warped_bins.shape
     if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
         out_bins[:] = -1
         out_confidence[:] = 0.0
+        out_landed[:] = False
         return
     columns = np.empty(out_bins.shape[1], np.int64)
     for x in range(out_bins.shape[1]):
         columns[x] = int(np.floor(x + dx + 0.5))
     for y in range(out_bins.shape[0]):
-        _sample_row(warped_bins, warped_confidence, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
-                    out_confidence)
+        _sample_row(warped_bins, warped_confidence, landed, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
+                    out_confidence, out_landed)
 
 
 @njit(cache=True)
 def _warp_scratch(disparity):
-    """A view's warped disparity, confidence and bins, and which pixels were filled: ``(Y, X)`` each."""
+    """A view's warped disparity, confidence and bins, which pixels were filled and where something landed:
+    ``(Y, X)`` each."""
     n_rows, n_cols = disparity.shape
     return (np.empty((n_rows, n_cols), disparity.dtype), np.empty((n_rows, n_cols), np.float32),
-            np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_))
+            np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_),
+            np.empty((n_rows, n_cols), np.bool_))
 
 
 @njit(cache=True, parallel=True)
-def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence):
+def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence, out_landed):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y', X')`` int16 of the surface its sample at
-    ``p + slope * q_i`` shows, and that surface's confidence: ``disparity`` and ``confidence (Y, X)``
+    ``p + slope * q_i`` shows, that surface's confidence, and whether a pixel of the disparity landed
+    there (else the view sees what the centre of the aperture does not): ``disparity`` and ``confidence (Y, X)``
     forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
     shift (:func:`_shifted_bins_view`); views in parallel. The disparity may reach ``e`` px further than
     the output on every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
     source_bins = _source_bins(disparity, edges)
     extra = (disparity.shape[0] - out_bins.shape[1]) // 2
     for i in prange(positions.shape[0]):
-        warped, warped_confidence, warped_bins, filled = _warp_scratch(disparity)
+        warped, warped_confidence, warped_bins, filled, landed = _warp_scratch(disparity)
         q_y, q_x = positions[i, 0], positions[i, 1]
         _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
-                   filled)
-        _shifted_bins_view(warped_bins, warped_confidence, slope * q_y + extra, slope * q_x + extra, out_bins[i],
-                           out_confidence[i])
+                   filled, landed)
+        _shifted_bins_view(warped_bins, warped_confidence, landed, slope * q_y + extra, slope * q_x + extra,
+                           out_bins[i], out_confidence[i], out_landed[i])
+
+
+@njit(cache=True, parallel=True)
+def disoccluded_in_focus(values, weights, bins, landed, behind, sharp, least, agree, floor, positions, centres, slope,
+                         checks, loose, others):
+    """Give the in-focus bin ``sharp`` to the samples that show what the centre of the aperture does not (not
+    ``landed``), counted to a bin ``behind`` the in-focus one, where at least ``least`` of them agree and
+    their bin does not explain them. Agree: the standard deviation of their colour (root mean over the
+    channels) at most ``loose`` times their mean colour's (``floor`` at least) where some of them can be
+    checked against their bin, ``agree`` times where none can. Explained: each of the ``checks`` views
+    nearest (``others (n, n - 1)``, each view's others nearest first) that shows the same point of the bin's
+    surface (at ``p + (slope - centre) (q_i - q_j)``, a sample of that bin) shows it in about the same colour
+    (within ``loose``); the bin does not explain them where most of those checked differ. ``positions (n,
+    2)``, ``centres (K,)``: the views' and the bins'. ``bins (n, Y, X)`` is changed in place."""
+    n, n_rows, n_cols = bins.shape
+    n_ch = values.shape[3]
+    for y in prange(n_rows):
+        total = np.zeros(n_ch, np.float64)
+        squares = np.zeros(n_ch, np.float64)
+        for x in range(n_cols):
+            count = 0
+            weight = 0.0
+            total[:] = 0.0
+            squares[:] = 0.0
+            for i in range(n):
+                k = bins[i, y, x]
+                w = weights[i, y, x]
+                if k < 0 or landed[i, y, x] or not behind[k] or not w > 0.0:
+                    continue
+                count += 1
+                weight += w
+                for c in range(n_ch):
+                    v = values[i, y, x, c]
+                    total[c] += w * v
+                    squares[c] += w * v * v
+            if count < least:
+                continue
+            spread = 0.0
+            level = 0.0
+            for c in range(n_ch):
+                mean = total[c] / weight
+                spread += max(squares[c] / weight - mean * mean, 0.0)
+                level += abs(mean)
+            level = max(level / n_ch, floor)
+            checked = 0
+            unexplained = 0
+            for i in range(n):
+                k = bins[i, y, x]
+                if k < 0 or landed[i, y, x] or not behind[k] or not weights[i, y, x] > 0.0:
+                    continue
+                for m in range(min(checks, others.shape[1])):
+                    j = others[i, m]
+                    sy = int(np.floor(y + (slope - centres[k]) * (positions[i, 0] - positions[j, 0]) + 0.5))
+                    sx = int(np.floor(x + (slope - centres[k]) * (positions[i, 1] - positions[j, 1]) + 0.5))
+                    if not (0 <= sy < n_rows and 0 <= sx < n_cols) or bins[j, sy, sx] != k \
+                            or not weights[j, sy, sx] > 0.0:
+                        continue
+                    checked += 1
+                    differ = 0.0
+                    for c in range(n_ch):
+                        differ += abs(values[i, y, x, c] - values[j, sy, sx, c])
+                    if differ / n_ch > loose * level:
+                        unexplained += 1
+            if checked > 0:
+                if 2 * unexplained <= checked or np.sqrt(spread / n_ch) > loose * level:
+                    continue
+            elif np.sqrt(spread / n_ch) > agree * level:
+                continue
+            for i in range(n):
+                k = bins[i, y, x]
+                if k >= 0 and not landed[i, y, x] and behind[k] and weights[i, y, x] > 0.0:
+                    bins[i, y, x] = sharp
 
 
 @njit(cache=True, parallel=True)

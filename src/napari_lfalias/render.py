@@ -87,6 +87,19 @@ OCCLUSION_GAP_PX = 4.0
 #: Share of the views that must show an in-focus surface at a pixel before it fills what the other
 #: views' cells leave uncovered there.
 FILL_SHARE = 0.25
+#: The samples of what the centre of the aperture does not see, counted to a surface behind the in-focus
+#: one, are counted to the in-focus one (:func:`_disoccluded_in_focus`) where at least this many views show
+#: it ...
+DISOCCLUDED_VIEWS = 2
+#: ... where the :data:`DISOCCLUDED_CHECKS` views nearest each see the point of its surface that sample would
+#: show in a colour more than this share of the mean colour away (most of them), and the samples' colours
+#: have a standard deviation of at most this share: the surface does not explain them, and they agree ...
+DISOCCLUDED_LOOSE = 0.15
+DISOCCLUDED_CHECKS = 4
+#: ... or, where no view can check them, their colours' standard deviation is at most this share.
+DISOCCLUDED_AGREE = 0.04
+#: The colour shares above are of the mean colour, or of this share of the light field's peak where that is more.
+DARK_SHARE = 0.01
 #: Band (cycles/px) over which a view's narrowed box is fitted (:func:`_narrowed_width`): up to a little
 #: beyond the synthetic textures' cut-off, 0.3.
 FIT_BAND = 0.35
@@ -237,6 +250,49 @@ def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     return fill, has_fill
 
 
+def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders):
+    """Count to the in-focus bin the views' samples of what the centre of the aperture does not see, where
+    they agree and the surface they were counted to does not explain them (:data:`DISOCCLUDED_LOOSE`):
+    ``bins`` changed in place.
+
+    The disparity is the centre's: where a defocused occluder's blurred
+    edge lets a view see past it, the warp fills the view with the
+    farther of the surfaces around, while a surface between the two,
+    hidden from the centre, may be what the view sees. Counted to the
+    farther surface, an in-focus surface's samples were spread by that
+    surface's blur (fresh scene 912 at -0.8: stripes in focus behind a
+    defocused square, seen past its edge by 21 of 49 views, 8 dB below
+    the naive refocus there with the true disparity). Where the views
+    that see past the occluder there agree, they see one point: in focus.
+    Agreement alone is not enough: a periodic surface's samples agree a
+    period off (fresh scene 617 at 1.8: 7.5 dB lost where aliased), so
+    the nearest views must also see that surface differently where the
+    sample would show it.
+    """
+    sharp = np.flatnonzero(~np.any(taps != 0, axis=1))
+    if sharp.size == 0:
+        return
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    behind = np.zeros(len(order), bool)
+    behind[order] = occluders >= rank[sharp].max()  # clearly behind every in-focus bin
+    if not behind.any():
+        return
+    nearest = int(sharp[np.argmin(np.abs(centres[sharp] - stack.slope))])
+    peak = float(np.max(np.abs(stack.values), initial=0.0))
+    positions = np.ascontiguousarray(stack.positions, np.float64)
+    _run("disoccluded_in_focus", stack.values, stack.weights, bins, landed, behind, nearest, int(DISOCCLUDED_VIEWS),
+         float(DISOCCLUDED_AGREE), max(DARK_SHARE * peak, float(np.finfo(np.float32).tiny)), positions,
+         np.ascontiguousarray(centres, np.float64), float(stack.slope), int(DISOCCLUDED_CHECKS),
+         float(DISOCCLUDED_LOOSE), _nearest_first(positions))
+
+
+def _nearest_first(positions):
+    """Each view's others ``(n, n - 1)``, nearest first, for views at ``positions (n, 2)``."""
+    apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
+    return np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+
+
 def _with_mixed_edges(disparity, slope, gap):
     """``disparity`` with the pixels on an occluding edge given to the side sharper at ``slope``.
 
@@ -385,11 +441,13 @@ class SlopeRenderer:
         shape = stack.weights.shape[1:]
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
+        landed = np.empty((n,) + shape, bool)
         _run("view_bins", _beyond(narrow if exact else disparity, pad, extra), _beyond(confidence, pad, extra),
-             self.positions, bool(larger_first), slope, edges, bins, sample_conf)
+             self.positions, bool(larger_first), slope, edges, bins, sample_conf, landed)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
+        _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 
@@ -537,8 +595,7 @@ def _composite(layers, windows=None):
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
     # every view over the whole grid, for the stand-ins of the samples a view lacks (_render_kernels._stand_in)
     positions = np.ascontiguousarray(stack.positions, np.float64)
-    apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
-    nearest_first = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+    nearest_first = _nearest_first(positions)
     pad = (shape[0] - layers.disparity.shape[0]) // 2
     own = np.ascontiguousarray(stack.slope * positions - pad)  # grid pixel + own[i]: where view i samples it
     sampled_rows = np.empty(bins.shape[:2], bool)

@@ -297,6 +297,8 @@ def disoccluded_in_focus(values, weights, bins, landed, behind, sharp, least, ag
     2)``, ``centres (K,)``: the views' and the bins'. ``bins (n, Y, X)`` is changed in place."""
     n, n_rows, n_cols = bins.shape
     n_ch = values.shape[3]
+    # decided over the bins as they came in, then changed: a check reads other pixels' bins
+    relabel = np.zeros((n_rows, n_cols), np.bool_)
     for y in prange(n_rows):
         total = np.zeros(n_ch, np.float64)
         squares = np.zeros(n_ch, np.float64)
@@ -348,6 +350,11 @@ def disoccluded_in_focus(values, weights, bins, landed, behind, sharp, least, ag
                 if 2 * unexplained <= checked or np.sqrt(spread / n_ch) > loose * level:
                     continue
             elif np.sqrt(spread / n_ch) > agree * level:
+                continue
+            relabel[y, x] = True
+    for y in prange(n_rows):
+        for x in range(n_cols):
+            if not relabel[y, x]:
                 continue
             for i in range(n):
                 k = bins[i, y, x]

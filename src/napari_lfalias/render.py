@@ -250,7 +250,7 @@ def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     return fill, has_fill
 
 
-def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders):
+def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, peak):
     """Count to the in-focus bin the views' samples of what the centre of the aperture does not see, where
     they agree and the surface they were counted to does not explain them (:data:`DISOCCLUDED_LOOSE`):
     ``bins`` changed in place.
@@ -279,7 +279,6 @@ def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders):
     if not behind.any():
         return
     nearest = int(sharp[np.argmin(np.abs(centres[sharp] - stack.slope))])
-    peak = float(np.max(np.abs(stack.values), initial=0.0))
     positions = np.ascontiguousarray(stack.positions, np.float64)
     _run("disoccluded_in_focus", stack.values, stack.weights, bins, landed, behind, nearest, int(DISOCCLUDED_VIEWS),
          float(DISOCCLUDED_AGREE), max(DARK_SHARE * peak, float(np.finfo(np.float32).tiny)), positions,
@@ -393,6 +392,13 @@ class SlopeRenderer:
         self._stacks = {}
         self.naive = refocus(lf, slope) if naive is None else naive
 
+    @functools.cached_property
+    def peak(self):
+        """The light field's largest magnitude (the colour shares of :func:`_disoccluded_in_focus` have it
+        for their floor), found once: a pass over the data, without a copy of it."""
+        data = np.asarray(self.lf.data)
+        return max(float(np.max(data, initial=0.0)), -float(np.min(data, initial=0.0)))
+
     def stack(self, pad=0):
         """The views shifted for this slope over the image grown by ``pad`` px on every side
         (:func:`~napari_lfalias.refocus.shift_views`), made once per ``pad``."""
@@ -447,7 +453,7 @@ class SlopeRenderer:
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders)
+        _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 

@@ -284,10 +284,11 @@ def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_
 
 
 @njit(cache=True, parallel=True)
-def disoccluded_in_focus(values, weights, bins, landed, behind, sharp, least, agree, floor, positions, centres, slope,
-                         checks, loose, others):
+def disoccluded_in_focus(values, weights, bins, landed, hidden, behind, sharp, least, agree, floor, positions, centres,
+                         slope, checks, loose, others):
     """Give the in-focus bin ``sharp`` to the samples that show what the centre of the aperture does not (not
-    ``landed``), counted to a bin ``behind`` the in-focus one, where at least ``least`` of them agree and
+    ``landed``), counted to a bin ``behind`` the in-focus one, at the pixels where the centre sees a surface
+    in front of the in-focus one (``hidden (Y, X)``), where at least ``least`` of them agree and
     their bin does not explain them. Agree: the standard deviation of their colour (root mean over the
     channels) at most ``loose`` times their mean colour's (``floor`` at least) where some of them can be
     checked against their bin, ``agree`` times where none can. Explained: each of the ``checks`` views
@@ -303,6 +304,8 @@ def disoccluded_in_focus(values, weights, bins, landed, behind, sharp, least, ag
         total = np.zeros(n_ch, np.float64)
         squares = np.zeros(n_ch, np.float64)
         for x in range(n_cols):
+            if not hidden[y, x]:
+                continue
             count = 0
             weight = 0.0
             total[:] = 0.0

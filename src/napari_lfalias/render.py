@@ -250,7 +250,7 @@ def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     return fill, has_fill
 
 
-def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, peak):
+def _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order, occluders, peak):
     """Count to the in-focus bin the views' samples of what the centre of the aperture does not see, where
     they agree and the surface they were counted to does not explain them (:data:`DISOCCLUDED_LOOSE`):
     ``bins`` changed in place.
@@ -267,7 +267,12 @@ def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, 
     Agreement alone is not enough: a periodic surface's samples agree a
     period off (fresh scene 617 at 1.8: 7.5 dB lost where aliased), so
     the nearest views must also see that surface differently where the
-    sample would show it.
+    sample would show it. And only where the centre sees a surface in
+    front of the in-focus one (``centre_bins``, the bin of the disparity
+    at each pixel of the grid) can the in-focus surface be hidden from it:
+    past the edge of an in-focus surface that nothing hides, the views see
+    what lies behind it (fresh scene 1102 at 3.0, tiles in focus before
+    stripes: counted in focus there, 1.6 dB lost on its clean pixels).
     """
     sharp = np.flatnonzero(~np.any(taps != 0, axis=1))
     if sharp.size == 0:
@@ -279,8 +284,13 @@ def _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, 
     if not behind.any():
         return
     nearest = int(sharp[np.argmin(np.abs(centres[sharp] - stack.slope))])
+    # where the centre sees a surface in front of the in-focus one: only there can it not see that one
+    hidden = rank[centre_bins] <= occluders[rank[nearest]]
+    if not hidden.any():
+        return
     positions = np.ascontiguousarray(stack.positions, np.float64)
-    _run("disoccluded_in_focus", stack.values, stack.weights, bins, landed, behind, nearest, int(DISOCCLUDED_VIEWS),
+    _run("disoccluded_in_focus", stack.values, stack.weights, bins, landed, hidden, behind, nearest,
+         int(DISOCCLUDED_VIEWS),
          float(DISOCCLUDED_AGREE), max(DARK_SHARE * peak, float(np.finfo(np.float32).tiny)), positions,
          np.ascontiguousarray(centres, np.float64), float(stack.slope), int(DISOCCLUDED_CHECKS),
          float(DISOCCLUDED_LOOSE), _nearest_first(positions))
@@ -453,7 +463,9 @@ class SlopeRenderer:
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        _disoccluded_in_focus(stack, bins, landed, centres, taps, order, occluders, self.peak)
+        centre_bins = np.clip(np.searchsorted(edges, np.pad(disparity, pad, mode="reflect"), side="right") - 1, 0,
+                              len(centres) - 1)
+        _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order, occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 

@@ -29,8 +29,8 @@ from numba import njit, prange
 
 from ._baseline_kernels import box_image_into
 
-__all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour", "in_focus_colour_near", "sampled_lines",
-           "composite_views"]
+__all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour", "in_focus_colour_near",
+           "sampled_lines", "composite_views"]
 
 
 @njit(cache=True, inline="always")

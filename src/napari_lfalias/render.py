@@ -289,11 +289,10 @@ def _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order
     if not hidden.any():
         return
     positions = np.ascontiguousarray(stack.positions, np.float64)
+    floor = max(DARK_SHARE * peak, float(np.finfo(np.float32).tiny))
     _run("disoccluded_in_focus", stack.values, stack.weights, bins, landed, hidden, behind, nearest,
-         int(DISOCCLUDED_VIEWS),
-         float(DISOCCLUDED_AGREE), max(DARK_SHARE * peak, float(np.finfo(np.float32).tiny)), positions,
-         np.ascontiguousarray(centres, np.float64), float(stack.slope), int(DISOCCLUDED_CHECKS),
-         float(DISOCCLUDED_LOOSE), _nearest_first(positions))
+         int(DISOCCLUDED_VIEWS), float(DISOCCLUDED_AGREE), floor, positions, np.ascontiguousarray(centres, np.float64),
+         float(stack.slope), int(DISOCCLUDED_CHECKS), float(DISOCCLUDED_LOOSE), _nearest_first(positions))
 
 
 def _nearest_first(positions):

@@ -133,17 +133,16 @@ def _first_landed(landed, y, x, step_y, step_x):
 
 
 @njit(cache=True)
-def _fill_along_offset(values, confidence, bins, filled, q_y, q_x, larger_first):
-    """Fill each unfilled pixel of a warped view from the first pixel something landed in along the view's
-    offset ``(q_y, q_x)``, either way: the one farther in depth, where both exist. A disocclusion opens along
-    the offset, between the occluder and what lies behind it, and shows the latter (across a horizontal edge
-    of an occluder, for a view above or below the centre, that is the surface above or below the edge, not
-    what lies to either side of the occluder)."""
+def _fill_along_offset(values, confidence, bins, filled, landed, q_y, q_x, larger_first):
+    """Fill each unfilled pixel of a warped view from the first pixel something landed in (``landed``, as
+    ``filled`` was before the fill) along the view's offset ``(q_y, q_x)``, either way: the one farther in
+    depth, where both exist. A disocclusion opens along the offset, between the occluder and what lies
+    behind it, and shows the latter (across a horizontal edge of an occluder, for a view above or below the
+    centre, that is the surface above or below the edge, not what lies to either side of the occluder)."""
     scale = max(abs(q_y), abs(q_x))
     if scale == 0.0:
         return
     step_y, step_x = q_y / scale, q_x / scale
-    landed = filled.copy()
     flat_d, flat_c, flat_b = values.ravel(), confidence.ravel(), bins.ravel()
     n_rows, n_cols = values.shape
     for y in range(n_rows):
@@ -173,7 +172,7 @@ def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d
     n_rows = disparity.shape[0]
     _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled)
     landed[:, :] = filled
-    _fill_along_offset(out_d, out_c, out_b, filled, q_y, q_x, larger_first)
+    _fill_along_offset(out_d, out_c, out_b, filled, landed, q_y, q_x, larger_first)
     empty = False
     for y in range(n_rows):
         _fill_row(out_d, out_c, out_b, filled, y, larger_first)
@@ -283,6 +282,14 @@ def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_
                            out_bins[i], out_confidence[i], out_landed[i])
 
 
+@njit(cache=True, inline="always")
+def _disoccluded_behind(bins, landed, weights, behind, i, y, x):
+    """Whether view ``i``'s sample at ``(y, x)`` shows what the centre does not (not ``landed``) and is counted
+    to a bin ``behind`` the in-focus one, with weight."""
+    k = bins[i, y, x]
+    return k >= 0 and not landed[i, y, x] and behind[k] and weights[i, y, x] > 0.0
+
+
 @njit(cache=True, parallel=True)
 def disoccluded_in_focus(values, weights, bins, landed, hidden, behind, sharp, least, agree, floor, positions, centres,
                          slope, checks, loose, others):
@@ -311,10 +318,9 @@ def disoccluded_in_focus(values, weights, bins, landed, hidden, behind, sharp, l
             total[:] = 0.0
             squares[:] = 0.0
             for i in range(n):
-                k = bins[i, y, x]
-                w = weights[i, y, x]
-                if k < 0 or landed[i, y, x] or not behind[k] or not w > 0.0:
+                if not _disoccluded_behind(bins, landed, weights, behind, i, y, x):
                     continue
+                w = weights[i, y, x]
                 count += 1
                 weight += w
                 for c in range(n_ch):
@@ -333,9 +339,9 @@ def disoccluded_in_focus(values, weights, bins, landed, hidden, behind, sharp, l
             checked = 0
             unexplained = 0
             for i in range(n):
-                k = bins[i, y, x]
-                if k < 0 or landed[i, y, x] or not behind[k] or not weights[i, y, x] > 0.0:
+                if not _disoccluded_behind(bins, landed, weights, behind, i, y, x):
                     continue
+                k = bins[i, y, x]
                 for m in range(min(checks, others.shape[1])):
                     j = others[i, m]
                     sy = int(np.floor(y + (slope - centres[k]) * (positions[i, 0] - positions[j, 0]) + 0.5))
@@ -360,8 +366,7 @@ def disoccluded_in_focus(values, weights, bins, landed, hidden, behind, sharp, l
             if not relabel[y, x]:
                 continue
             for i in range(n):
-                k = bins[i, y, x]
-                if k >= 0 and not landed[i, y, x] and behind[k] and weights[i, y, x] > 0.0:
+                if _disoccluded_behind(bins, landed, weights, behind, i, y, x):
                     bins[i, y, x] = sharp
 
 

@@ -146,7 +146,7 @@ def _bins(disparity, slope, spacing, max_bins):
     count = max(1, min(max_bins, int(math.ceil((high - low) * spacing / BIN_PX))))
     edges = np.linspace(low, high, count + 1)
     edges[0], edges[-1] = -np.inf, np.inf
-    index = np.clip(np.searchsorted(edges, disparity.ravel(), side="right") - 1, 0, count - 1)
+    index = _bin_index(edges, disparity.ravel())
     sums = np.bincount(index, weights=disparity.ravel(), minlength=count)
     counts = np.bincount(index, minlength=count)
     inner = np.linspace(low, high, count + 1)
@@ -158,6 +158,11 @@ def _bins(disparity, slope, spacing, max_bins):
         if width >= 2 * IN_FOCUS_PX:
             taps[k] = (*_box_taps(width), *_box_taps(width))
     return edges, centres, taps
+
+
+def _bin_index(edges, disparity):
+    """The bin of each value of ``disparity`` among the ``edges (K + 1,)``, clipped to ``[0, K - 1]``."""
+    return np.clip(np.searchsorted(edges, disparity, side="right") - 1, 0, len(edges) - 2)
 
 
 @functools.lru_cache(maxsize=8192)
@@ -250,7 +255,7 @@ def _in_focus_colour(stack, bins, taps, order, occluders, near=None):
     return fill, has_fill
 
 
-def _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order, occluders, peak):
+def _disoccluded_in_focus(stack, bins, landed, centre, edges, centres, taps, order, occluders, peak):
     """Count to the in-focus bin the views' samples of what the centre of the aperture does not see, where
     they agree and the surface they were counted to does not explain them (:data:`DISOCCLUDED_LOOSE`):
     ``bins`` changed in place.
@@ -268,8 +273,8 @@ def _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order
     period off (fresh scene 617 at 1.8: 7.5 dB lost where aliased), so
     the nearest views must also see that surface differently where the
     sample would show it. And only where the centre sees a surface in
-    front of the in-focus one (``centre_bins``, the bin of the disparity
-    at each pixel of the grid) can the in-focus surface be hidden from it:
+    front of the in-focus one (``centre``, the disparity over the grid
+    of ``bins``) can the in-focus surface be hidden from it:
     past the edge of an in-focus surface that nothing hides, the views see
     what lies behind it (fresh scene 1102 at 3.0, tiles in focus before
     stripes: counted in focus there, 1.6 dB lost on its clean pixels).
@@ -285,7 +290,7 @@ def _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order
         return
     nearest = int(sharp[np.argmin(np.abs(centres[sharp] - stack.slope))])
     # where the centre sees a surface in front of the in-focus one: only there can it not see that one
-    hidden = rank[centre_bins] <= occluders[rank[nearest]]
+    hidden = rank[_bin_index(edges, centre)] <= occluders[rank[nearest]]
     if not hidden.any():
         return
     positions = np.ascontiguousarray(stack.positions, np.float64)
@@ -462,9 +467,8 @@ class SlopeRenderer:
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        centre_bins = np.clip(np.searchsorted(edges, np.pad(disparity, pad, mode="reflect"), side="right") - 1, 0,
-                              len(centres) - 1)
-        _disoccluded_in_focus(stack, bins, landed, centre_bins, centres, taps, order, occluders, self.peak)
+        _disoccluded_in_focus(stack, bins, landed, np.pad(disparity, pad, mode="reflect"), edges, centres, taps, order,
+                              occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 

@@ -8,6 +8,14 @@ the cell of the aperture around it, and over that cell the surface moves
 by ``|r| * spacing`` pixels, so the copies turn into one box per view that
 tiles the whole aperture's blur.
 
+The aperture rendered is the views' cells: ``n`` views one spacing apart
+span ``n`` spacings on each axis. A sub-grid of a denser array spans the
+array's aperture only where its cells tile it: rows 1, 4, 7 of nine views
+do (cells of three steps), rows 0, 2, 4, 6, 8 span ten of the array's
+steps, not nine (their outermost views are the array's), and their
+rendering is the dense aperture of those ten; the refocus of all nine is
+that of nine (measured: ``benchmarks/results/accuracy.md``, stop 35).
+
 :func:`antialiased_refocus` renders exactly that, given the disparity of
 every pixel (estimated by :func:`~napari_lfalias.disparity.estimate_disparity`
 when not given):

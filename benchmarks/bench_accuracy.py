@@ -171,7 +171,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
-    parser.add_argument("--split", default=None, help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-o)")
+    parser.add_argument("--split", default=None,
+                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-o)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None else args.out.parent / "accuracy"

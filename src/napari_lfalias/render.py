@@ -470,12 +470,14 @@ class SlopeRenderer:
         bins = np.empty((n,) + shape, np.int16)
         sample_conf = np.empty((n,) + shape, np.float32)
         landed = np.empty((n,) + shape, bool)
-        _run("view_bins", _beyond(narrow if exact else disparity, pad, extra), _beyond(confidence, pad, extra),
-             self.positions, bool(larger_first), slope, edges, bins, sample_conf, landed)
+        warped = _beyond(narrow if exact else disparity, pad, extra)
+        _run("view_bins", warped, _beyond(confidence, pad, extra), self.positions, bool(larger_first), slope, edges,
+             bins, sample_conf, landed)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
-        _disoccluded_in_focus(stack, bins, landed, np.pad(disparity, pad, mode="reflect"), edges, centres, taps, order,
+        # the disparity over the grid of the bins: the warped one less its continued margin (the same values)
+        _disoccluded_in_focus(stack, bins, landed, warped[extra:-extra, extra:-extra], edges, centres, taps, order,
                               occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)

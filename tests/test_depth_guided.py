@@ -516,9 +516,9 @@ def _scores_and_windows(scene, slope, monkeypatch):
     windows = []
     composite = render_module._composite
 
-    def spy(layers, within=None):
+    def spy(layers, within=None, trust=True):
         windows.append(within)
-        return composite(layers, within)
+        return composite(layers, within, trust)
 
     monkeypatch.setattr(render_module, "_composite", spy)
     # an estimate is a little noisy: its edge renderings differ from the rendering everywhere it is not in focus
@@ -541,6 +541,30 @@ def test_renderings_of_the_scored_pixels_only_give_the_scores_of_whole_ones(monk
     assert (whole > THRESHOLD).mean() > 0.01
     np.testing.assert_allclose(part, whole, rtol=1e-5, atol=1e-6)
     np.testing.assert_array_equal(part > THRESHOLD, whole > THRESHOLD)
+
+
+def test_the_rendering_leaves_out_the_trust_that_the_scored_rendering_keeps(room):
+    # the rendering is made without its trust; a scored rendering asked for after it at the same slope is
+    # made with it (not the rendering's), as a guide that never made the rendering makes it
+    estimate = lfa.estimate_disparity(room)
+    guide = DepthGuide(room, estimate)
+    assert guide.rendering(4.0).trust is None
+    scored = guide.scored_rendering(4.0)
+    fresh = DepthGuide(room, estimate).scored_rendering(4.0)
+    assert scored.trust is not None and 0.0 < scored.trust.max() <= 1.0
+    np.testing.assert_array_equal(scored.trust, fresh.trust)
+    np.testing.assert_allclose(scored.image, fresh.image, rtol=0, atol=1e-6)
+
+
+def test_a_guide_kept_across_slopes_renders_each_as_a_fresh_one():
+    # what a guide keeps between slopes (the views' fit at the estimate, for its periodic pixels) changes
+    # nothing: each slope's rendering is a fresh guide's, bit for bit
+    room = as_user_has_it(brick_room(n_views=4, size=96, seed=0).lightfield)
+    estimate = lfa.estimate_disparity(room)
+    guide = DepthGuide(room, estimate)
+    assert np.isfinite(guide.alternative).any()  # the bricks fit a second disparity: the fit is made and kept
+    for slope in (4.0, -4.0, 2.0):
+        np.testing.assert_array_equal(guide.rendering(slope).image, DepthGuide(room, estimate).rendering(slope).image)
 
 
 def test_moved_edges_move_the_depth_edges_only():

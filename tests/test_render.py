@@ -373,6 +373,26 @@ def test_layers_that_differ_in_some_pixels_render_there_only_and_equal_the_whole
     assert np.abs(whole.image - rendering.image).max() > 0.05
 
 
+def test_a_composite_without_trust_renders_the_same_image_and_no_trust():
+    # the confidence plane left out of the layers changes nothing else: the image and the blurred share as
+    # with it (to float rounding: the box passes vectorise the planes differently), whole and in windows
+    scene = brick_room(n_views=5, size=160, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, 4.0)
+    rng = np.random.default_rng(2)
+    noisy = (scene.disparity + rng.normal(0.0, 0.05, scene.disparity.shape)).astype(np.float32)
+    confidence = rng.uniform(0.2, 1.0, scene.disparity.shape).astype(np.float32)
+    layers = renderer.layers(noisy, confidence)
+    with_trust = renderer.composite(layers)
+    assert 0.2 <= with_trust.trust[with_trust.blurred_share > 0.5].min() < 0.99  # the confidence shows
+    within = np.zeros(scene.disparity.shape, bool)
+    within[40:80, 50:110] = True
+    for without in (renderer.composite(layers, trust=False),
+                    renderer.composite(layers, within=within, elsewhere=with_trust, trust=False)):
+        assert without.trust is None
+        for name in ("image", "blurred_share"):
+            np.testing.assert_allclose(getattr(without, name), getattr(with_trust, name), rtol=0, atol=ROUNDING)
+
+
 @pytest.mark.parametrize("offset", [(1.0, 0.0), (1.0, 0.5), (0.0, 1.0)])
 def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offset(offset):
     # A far background (disparity 0), a band at 1 whose lower part an occluder at 5 hides (larger in front).

@@ -465,14 +465,16 @@ def _bin_boxes(bins, n_bins):
 
 
 @njit(cache=True, inline="always")
-def _accumulate(num, den, blurred, trust, y, x, t, colour, visible, confidence, blur):
-    """Add a layer's cell at ``(y, x)`` (colour ``colour``, coverage ``visible``) by the weight ``t``."""
+def _accumulate(num, den, blurred, trust, y, x, t, colour, visible, confidence, blur, with_trust):
+    """Add a layer's cell at ``(y, x)`` (colour ``colour``, coverage ``visible``) by the weight ``t``; its
+    confidence to ``trust`` where ``with_trust``."""
     for c in range(num.shape[2]):
         num[y, x, c] += t * colour[c]
     den[y, x] += t * visible
     if blur:
         blurred[y, x] += t * visible
-    trust[y, x] += t * confidence
+    if with_trust:
+        trust[y, x] += t * confidence
 
 
 @njit(cache=True)
@@ -678,7 +680,7 @@ def _mark_taps(taps, first, out):
 
 @njit(cache=True)
 def _composite_view(values, weights, bins, confidence, order, occluders, taps, box_taps, fill, has_fill, num, den,
-                    blurred, trust, covers, seen, scratch, whole, i, origin):
+                    blurred, trust, with_trust, covers, seen, scratch, whole, i, origin):
     """Composite one view's bins front to back into the accumulators (one thread).
 
     The bin at ``order[o]`` is seen through the bins ``order[:occluders[o] + 1]``
@@ -764,10 +766,13 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                     covers[o, y, x] = 1.0
                     t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]
                     if t > 0.0:
-                        _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False)
+                        _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False,
+                                    with_trust)
             continue
         hides = occluders[o] >= 0
-        n_layer = n_ch + 3 if hides else n_ch + 2  # the last plane: where nearer bins hide this one
+        # planes: the colour, the coverage, with_trust the confidence, and where hides the last: where nearer
+        # bins hide this one
+        n_layer = n_ch + 1 + (1 if with_trust else 0) + (1 if hides else 0)
         size = (y1 - y0) * (x1 - x0) * n_layer
         scratch[0, :size] = 0.0
         layer = scratch[0, :size].reshape((y1 - y0, x1 - x0, n_layer))
@@ -789,14 +794,15 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                                         y + origin[0], x + origin[1], layer[y - y0, x - x0, :n_ch])):
                     continue
                 layer[y - y0, x - x0, n_ch] = 1.0
-                layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
+                if with_trust:
+                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
                 held += 1
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     b = bins[y, x]
                     if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
-                        layer[y - y0, x - x0, n_ch + 2] = 1.0
+                        layer[y - y0, x - x0, n_layer - 1] = 1.0
         summed = scratch[1, :size].reshape((y1 - y0, x1 - x0, n_layer))
         box = (2 * int(ny) + 3) * (2 * int(nx) + 3)
         spread = held * box * (1 + box if hides else 1)  # the scatter, and the gather of the hidden plane
@@ -851,7 +857,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
             for x in range(x0, x1):
                 visible = summed[y - y0, x - x0, n_ch]
                 # what the nearer bins hide of this surface has the colour of what is seen of it nearby
-                scale = (visible + summed[y - y0, x - x0, n_ch + 2]) / visible if hides and visible > 0.0 else 1.0
+                scale = (visible + summed[y - y0, x - x0, n_layer - 1]) / visible if hides and visible > 0.0 else 1.0
                 cover = min(visible * scale, 1.0)
                 covers[o, y, x] = cover
                 if cover <= 0.0:
@@ -864,7 +870,7 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                     continue
                 t *= scale
                 _accumulate(num, den, blurred, trust, y, x, t, summed[y - y0, x - x0], visible,
-                            summed[y - y0, x - x0, n_ch + 1], True)
+                            summed[y - y0, x - x0, n_ch + 1] if with_trust else 0.0, True, with_trust)
     while lagged < n_order - 1:  # what every bin leaves free
         lagged += 1
         y0, y1, x0, x1 = reach[lagged, 0], reach[lagged, 1], reach[lagged, 2], reach[lagged, 3]
@@ -875,15 +881,15 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
         for x in range(n_cols):
             t = seen[y, x] * weights[y, x]
             if t > 0.0 and has_fill[y, x]:
-                _accumulate(num, den, blurred, trust, y, x, t, fill[y, x], one, one, False)
+                _accumulate(num, den, blurred, trust, y, x, t, fill[y, x], one, one, False, with_trust)
 
 
 @njit(cache=True, parallel=True)
 def composite_views(values, weights, bins, confidence, order, occluders, taps, view_taps, fill, has_fill, whole,
-                    origin, n_chunks, num, den, blurred, trust):
+                    origin, n_chunks, num, den, blurred, trust, with_trust):
     """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
-    the coverage of blurred bins ``blurred`` and the confidence-weighted coverage ``trust``
-    (each ``(n_chunks, Y, X)``), one chunk of views per thread.
+    the coverage of blurred bins ``blurred`` and, where ``with_trust``, the confidence-weighted coverage
+    ``trust`` (each ``(n_chunks, Y, X)``; ``trust`` left as it is otherwise), one chunk of views per thread.
 
     ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
     :func:`napari_lfalias.baselines._box_taps`), ``view_taps (n, K, 4)``: the box each view blurs it by
@@ -900,5 +906,5 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, v
         scratch = np.empty((3, n_rows * n_cols * (values.shape[3] + 3)), np.float32)
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, view_taps[i],
-                            fill, has_fill, num[chunk], den[chunk], blurred[chunk], trust[chunk], covers, seen, scratch,
-                            whole, i, origin)
+                            fill, has_fill, num[chunk], den[chunk], blurred[chunk], trust[chunk], with_trust, covers,
+                            seen, scratch, whole, i, origin)

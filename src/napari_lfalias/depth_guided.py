@@ -262,6 +262,7 @@ class DepthGuide:
         self._estimate = None
         self._alternative = None
         self._period = None
+        self._fit_at_estimate = None  # (least angular cv near the estimate, where it was made)
         self._floor = None
         self._slope = None
         self._at_slope = {}  # what was made for self._slope, by name
@@ -394,7 +395,8 @@ class DepthGuide:
         return self._kept(slope, "naive", lambda: refocus(self._data, slope))
 
     def rendering(self, slope):
-        """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope)."""
+        """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope), without
+        its ``trust`` (``None``: the :meth:`scored_rendering` has it, where a reduction reads it)."""
         slope = _validate.finite_float("slope", slope)
         return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
 
@@ -437,8 +439,8 @@ class DepthGuide:
                 layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
                                          larger_first=self.larger_first(slope), bins_of=main)
                 within = used & layers.differs_from(main)
-                images.append(self._in_data_units(renderer.composite(layers, within=within,
-                                                                     elsewhere=rendering)).image)
+                images.append(self._in_data_units(renderer.composite(layers, within=within, elsewhere=rendering,
+                                                                     trust=False)).image)
             return images
 
         try:
@@ -474,13 +476,14 @@ class DepthGuide:
         return _ERROR_REACH + self._consistency_windows(slope).widest // 2
 
     def _raw_rendering(self, slope):
-        return self._kept(slope, "raw rendering", lambda: self._renderer(slope).composite(self._layers(slope)))
+        return self._kept(slope, "raw rendering",
+                          lambda: self._renderer(slope).composite(self._layers(slope), trust=False))
 
     def _raw_scored_rendering(self, slope):
         from .render import Rendering
 
         def make():
-            if "raw rendering" in self._at_slope:
+            if "raw rendering" in self._at_slope and self._at_slope["raw rendering"].trust is not None:
                 return self._at_slope["raw rendering"]
             read = ndimage.maximum_filter(~self._agree(slope), size=2 * self._score_reach(slope) + 1)
             renderer, shape = self._renderer(slope), self.lf.image_shape
@@ -560,8 +563,9 @@ class DepthGuide:
 
         spacing = view_spacing(self.lf.positions)
         nearer = self._has_period() & (np.abs(alternative - slope) < np.abs(disparity - slope))  # False where NaN
-        at_estimate = np.full(disparity.shape, np.inf, np.float32)  # the views' fit there, made once a pixel
-        asked = np.zeros(disparity.shape, bool)
+        if self._fit_at_estimate is None:  # the views' fit at the estimate, made once a pixel for every slope
+            self._fit_at_estimate = (np.full(disparity.shape, np.inf, np.float32), np.zeros(disparity.shape, bool))
+        at_estimate, asked = self._fit_at_estimate
 
         def fit_at_estimate(where):
             todo = where & ~asked

@@ -127,9 +127,10 @@ class Rendering:
     blurred_share : ndarray, shape (Y, X), float32
         The share of each pixel's coverage that comes from blurred
         (defocused) surfaces.
-    trust : ndarray, shape (Y, X), float32
+    trust : ndarray, shape (Y, X), float32, or None
         The coverage-weighted confidence of the disparities that made the
-        pixel (1 with a known disparity).
+        pixel (1 with a known disparity); ``None`` where it was not asked
+        for (:meth:`SlopeRenderer.composite` with ``trust=False``).
     """
 
     image: np.ndarray
@@ -482,9 +483,10 @@ class SlopeRenderer:
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
         return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
 
-    def composite(self, layers, *, within=None, elsewhere=None):
+    def composite(self, layers, *, within=None, elsewhere=None, trust=True):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
-        :meth:`render`."""
+        :meth:`render`. ``trust=False``: without its :attr:`Rendering.trust` (``None``), a sixth less
+        to composite where an image is all that is read."""
         if within is not None and elsewhere is None:
             raise ParameterError("render(within=...) needs elsewhere=, the Rendering its other pixels come from")
         if within is not None and not within.any():
@@ -493,21 +495,23 @@ class SlopeRenderer:
         inner = layers.inner
         windows = None if within is None else _windows(np.pad(within, layers.reach), layers.reach, self.TILE,
                                                        self.MOST_PARTIAL)
-        num, den, blurred, trust = (total[inner] for total in _composite(layers, windows))
+        num, den, blurred, trusted = (total[inner] for total in _composite(layers, windows, trust))
         seen = den > 1e-6
         image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
         share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
-        trust = np.divide(trust, den, out=np.zeros_like(den), where=seen)
+        if trust:
+            trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
         in_focus = (np.abs(layers.disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
         rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
-                              share.astype(np.float32), np.clip(trust, 0, 1).astype(np.float32))
+                              share.astype(np.float32), trusted if trust else None)
         if windows is None:
             return rendering
         done = np.zeros(layers.view_bins.shape[1:], bool)
         for _, (y0, y1, x0, x1) in windows:
             done[y0:y1, x0:x1] = True
         done = done[inner]
-        return Rendering(*(np.where(done[..., None] if part.ndim == 3 else done, part, other)
+        return Rendering(*(None if part is None or other is None else
+                           np.where(done[..., None] if part.ndim == 3 else done, part, other)
                            for part, other in zip((rendering.image, rendering.blurred_share, rendering.trust),
                                                   (elsewhere.image, elsewhere.blurred_share, elsewhere.trust))))
 
@@ -614,10 +618,10 @@ def _windows(within, margin, tile, most):
     return None if area > most * n_rows * n_cols else windows
 
 
-def _composite(layers, windows=None):
-    """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X) of :class:`Layers`
-    (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with ``windows``
-    (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
+def _composite(layers, windows=None, trust=True):
+    """The composite sums ``num (Y, X, C)``, ``den``, ``blurred``, ``trust`` (Y, X; 0 unless ``trust``) of
+    :class:`Layers` (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with
+    ``windows`` (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
     stack, bins, sample_conf = layers.stack, layers.view_bins, layers.view_confidence
     fill, has_fill = layers.fill, layers.has_fill
     order, occluders, taps = layers.order, layers.occluders, layers.bins[2]
@@ -641,14 +645,14 @@ def _composite(layers, windows=None):
         every = (slice(None),) + part
         chunks = 4
         num = np.zeros((chunks, y1 - y0, x1 - x0, n_ch), np.float32)
-        den, blurred, trust = (np.zeros((chunks, y1 - y0, x1 - x0), np.float32) for _ in range(3))
+        den, blurred, trusted = (np.zeros((chunks, y1 - y0, x1 - x0), np.float32) for _ in range(3))
         _run("composite_views", *(np.ascontiguousarray(a[every]) for a in (stack.values, stack.weights, bins,
                                                                              sample_conf)),
              order, occluders, taps, view_taps, np.ascontiguousarray(fill[part]),
              np.ascontiguousarray(has_fill[part]), whole_grid, np.array([y0, x0], np.int64), chunks, num, den, blurred,
-             trust)
+             trusted, bool(trust))
         inner = (slice(i0 - y0, i1 - y0), slice(j0 - x0, j1 - x0))
-        for total, chunked in zip(sums, (num, den, blurred, trust)):
+        for total, chunked in zip(sums, (num, den, blurred, trusted)):
             total[i0:i1, j0:j1] = chunked.sum(0)[inner]
     return sums
 

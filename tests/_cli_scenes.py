@@ -37,8 +37,13 @@ def write_plane(path, **kw):
 
 
 def temporaries(folder):
-    """Every temporary name left anywhere under ``folder``."""
-    return [p for p in Path(folder).rglob("*") if io_write.is_temporary(p)]
+    """Every temporary name left anywhere under ``folder``; asked while a writer works there, a folder that
+    goes away during the walk (a temporary renamed into place) means the walk is made again."""
+    while True:
+        try:
+            return [p for p in Path(folder).rglob("*") if io_write.is_temporary(p)]
+        except FileNotFoundError:
+            continue
 
 
 def write_views_folder(folder, lf):

@@ -752,8 +752,11 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
             continue
         blur = taps[k, 0] > 0 or taps[k, 1] > 0.0 or taps[k, 2] > 0 or taps[k, 3] > 0.0
         ny, fy, nx, fx = box_taps[k, 0], box_taps[k, 1], box_taps[k, 2], box_taps[k, 3]
+        hides = occluders[o] >= 0
         reach_y = int(ny) + 1 if blur else 0
         reach_x = int(nx) + 1 if blur else 0
+        if blur and hides:  # a box within reach of a sample reads the hidden plane as far again
+            reach_y, reach_x = 2 * reach_y, 2 * reach_x
         y0, y1 = max(0, y_lo - reach_y), min(n_rows, y_hi + reach_y + 1)
         x0, x1 = max(0, x_lo - reach_x), min(n_cols, x_hi + reach_x + 1)
         reach[o, 0], reach[o, 1], reach[o, 2], reach[o, 3] = y0, y1, x0, x1
@@ -769,7 +772,6 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                         _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False,
                                     with_trust)
             continue
-        hides = occluders[o] >= 0
         # planes: the colour, the coverage, with_trust the confidence, and where hides the last: where nearer
         # bins hide this one
         n_layer = n_ch + 1 + (1 if with_trust else 0) + (1 if hides else 0)

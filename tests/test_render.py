@@ -410,6 +410,8 @@ def test_a_composite_without_trust_renders_the_same_image_and_no_trust():
         assert without.trust is None
         for name in ("image", "blurred_share"):
             np.testing.assert_allclose(getattr(without, name), getattr(with_trust, name), rtol=0, atol=ROUNDING)
+    with pytest.raises(ParameterError, match="trust"):  # no trust to take the other pixels' from
+        renderer.composite(layers, within=within, elsewhere=without)
 
 
 @pytest.mark.parametrize("offset", [(1.0, 0.0), (1.0, 0.5), (0.0, 1.0)])

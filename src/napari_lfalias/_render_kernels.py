@@ -712,6 +712,9 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
     ``box_taps (K, 4)``'s (narrowed by the blur the view's resampling gave
     it, :func:`napari_lfalias.render._view_taps`).
 
+    ``with_trust``: whether the confidence is composited into ``trust`` (a
+    plane of the layers less where not).
+
     ``covers (K, Y, X)``, ``seen (Y, X)`` and ``scratch (3, Y * X * (C + 3))``
     are scratch: each bin's blurred coverage (within its reach), the share
     of the cell the bins composited so far leave free, brought up to

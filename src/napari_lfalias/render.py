@@ -489,6 +489,8 @@ class SlopeRenderer:
         to composite where an image is all that is read."""
         if within is not None and elsewhere is None:
             raise ParameterError("render(within=...) needs elsewhere=, the Rendering its other pixels come from")
+        if within is not None and trust and elsewhere.trust is None:
+            raise ParameterError("composite(within=..., trust=True) needs an elsewhere= Rendering with its trust")
         if within is not None and not within.any():
             return elsewhere
         slope, spacing = self.slope, self.spacing

@@ -398,7 +398,8 @@ class DepthGuide:
         """The dense-aperture :class:`~napari_lfalias.render.Rendering` at ``slope`` (kept per slope), without
         its ``trust`` (``None``: the :meth:`scored_rendering` has it, where a reduction reads it)."""
         slope = _validate.finite_float("slope", slope)
-        return self._kept(slope, "rendering", lambda: self._in_data_units(self._raw_rendering(slope)))
+        return self._kept(slope, "rendering", lambda: self._in_data_units(
+            self._renderer(slope).composite(self._layers(slope), trust=False)))
 
     def scored_rendering(self, slope):
         """The :meth:`rendering` at ``slope`` where :meth:`scores` and a reduction read it (kept per slope).
@@ -410,8 +411,8 @@ class DepthGuide:
         composited on the tiles around those pixels, as the
         :meth:`edge_renderings` are (:meth:`~napari_lfalias.render.SlopeRenderer.composite`
         with ``within``; the whole image where the tiles would cover most of
-        it); elsewhere it holds the naive refocus, with no trust. The
-        :meth:`rendering` itself where it is made already.
+        it); elsewhere it holds the naive refocus, with no trust. Made apart
+        from the :meth:`rendering`, which has no trust.
         """
         slope = _validate.finite_float("slope", slope)
         return self._kept(slope, "scored rendering", lambda: self._in_data_units(self._raw_scored_rendering(slope)))
@@ -475,16 +476,10 @@ class DepthGuide:
         widest window the renderings' local means are taken over."""
         return _ERROR_REACH + self._consistency_windows(slope).widest // 2
 
-    def _raw_rendering(self, slope):
-        return self._kept(slope, "raw rendering",
-                          lambda: self._renderer(slope).composite(self._layers(slope), trust=False))
-
     def _raw_scored_rendering(self, slope):
         from .render import Rendering
 
         def make():
-            if "raw rendering" in self._at_slope and self._at_slope["raw rendering"].trust is not None:
-                return self._at_slope["raw rendering"]
             read = ndimage.maximum_filter(~self._agree(slope), size=2 * self._score_reach(slope) + 1)
             renderer, shape = self._renderer(slope), self.lf.image_shape
             naive = Rendering(renderer.naive, np.zeros(shape, np.float32), np.zeros(shape, np.float32))

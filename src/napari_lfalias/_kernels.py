@@ -111,47 +111,52 @@ POINTS_BLOCK = 256
 @njit(cache=True, parallel=True)
 def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, out):
     """Angular coefficient of variation (weighted std / mean) of one-channel ``views (n, Y, X, 1)`` at the
-    points ``(ys, xs)`` ``(m,)``, each at its own disparity: view ``i`` sampled at ``p + d positions[i]`` with
-    :func:`bilinear_point` (``valid (n, Y, X)`` weighting the taps with ``has_valid``), each sample weighted
-    by its taps' weight, as :func:`moments` weights it. ``out (m,)``: inf where no view sees the point.
+    points ``(ys, xs)`` ``(m,)``, each at its own disparities ``(m, k)``: view ``i`` sampled at
+    ``p + d positions[i]`` with :func:`bilinear_point` (``valid (n, Y, X)`` weighting the taps with
+    ``has_valid``), each sample weighted by its taps' weight, as :func:`moments` weights it. ``out (m, k)``:
+    inf where no view sees the point. A point's ``k`` disparities are sampled together: near ones read
+    the same rows of a view, which then come from the cache.
     """
     n = views.shape[0]
-    m = ys.shape[0]
-    for block in prange((m + POINTS_BLOCK - 1) // POINTS_BLOCK):
-        start = block * POINTS_BLOCK
-        stop = min(start + POINTS_BLOCK, m)
+    m, n_tried = disparities.shape
+    block_size = max(POINTS_BLOCK // n_tried, 1)  # a block's samples of a view fill the same cache
+    for block in prange((m + block_size - 1) // block_size):
+        start = block * block_size
+        stop = min(start + block_size, m)
         sums = np.empty(1)
-        values = np.empty((stop - start, n))
-        weights = np.empty((stop - start, n))
+        values = np.empty((stop - start, n_tried, n))
+        weights = np.empty((stop - start, n_tried, n))
         for i in range(n):
-            view = views[i]
+            view, view_valid = views[i], valid[i if has_valid else 0]
             n_rows, n_cols = view.shape[0], view.shape[1]
             for k in range(start, stop):
-                py = ys[k] + disparities[k] * positions[i, 0]
-                px = xs[k] + disparities[k] * positions[i, 1]
-                y0, x0 = int(np.floor(py)), int(np.floor(px))
-                if 0 <= y0 < n_rows - 1 and 0 <= x0 < n_cols - 1:  # all four taps inside
-                    w, value = _bilinear_inside(view, valid[i if has_valid else 0], has_valid, y0, x0, py - y0,
-                                                px - x0)
-                else:
-                    w = bilinear_point(view, valid[i if has_valid else 0], has_valid, py, px, sums)
-                    value = sums[0]
-                weights[k - start, i] = w
-                values[k - start, i] = value / w if w > 0.0 else 0.0
+                for j in range(n_tried):
+                    py = ys[k] + disparities[k, j] * positions[i, 0]
+                    px = xs[k] + disparities[k, j] * positions[i, 1]
+                    y0, x0 = int(np.floor(py)), int(np.floor(px))
+                    if 0 <= y0 < n_rows - 1 and 0 <= x0 < n_cols - 1:  # all four taps inside
+                        w, value = _bilinear_inside(view, view_valid, has_valid, y0, x0, py - y0, px - x0)
+                    else:
+                        w = bilinear_point(view, view_valid, has_valid, py, px, sums)
+                        value = sums[0]
+                    weights[k - start, j, i] = w
+                    values[k - start, j, i] = value / w if w > 0.0 else 0.0
         for k in range(start, stop):
-            total = 0.0
-            mean = 0.0
-            for i in range(n):
-                total += weights[k - start, i]
-                mean += weights[k - start, i] * values[k - start, i]
-            if total <= 0.0:
-                out[k] = np.inf
-                continue
-            mean /= total
-            spread = 0.0
-            for i in range(n):
-                spread += weights[k - start, i] * (values[k - start, i] - mean) ** 2
-            out[k] = np.sqrt(spread / total) / max(mean, floor)
+            for j in range(n_tried):
+                point_weights, point_values = weights[k - start, j], values[k - start, j]
+                total = 0.0
+                mean = 0.0
+                for i in range(n):
+                    total += point_weights[i]
+                    mean += point_weights[i] * point_values[i]
+                if total <= 0.0:
+                    out[k, j] = np.inf
+                    continue
+                mean /= total
+                spread = 0.0
+                for i in range(n):
+                    spread += point_weights[i] * (point_values[i] - mean) ** 2
+                out[k, j] = np.sqrt(spread / total) / max(mean, floor)
 
 
 @njit(cache=True, parallel=True)

@@ -635,16 +635,16 @@ class DepthGuide:
         views = np.ascontiguousarray(lum.views(), np.float32)
         valid = np.ones((1, 1, 1), np.float32) if weights is None else np.ascontiguousarray(weights, np.float32)
         positions = np.ascontiguousarray(lum.flat_positions(), np.float64)
-        rounded = np.round(disparity[ys, xs].astype(np.float64) / step)
+        offsets = np.array(sorted(range(-reach, reach + 1), key=abs), np.float64)
+        tried = (np.round(disparity[ys, xs].astype(np.float64) / step)[:, None] + offsets) * step
+        cv = np.empty(tried.shape)
+        _run("points_cv", views, valid, weights is not None, positions, ys.astype(np.float64),
+             xs.astype(np.float64), tried, float(self._dark_floor), cv)
         best_cv = np.full(ys.size, np.inf)
         best_at = disparity[ys, xs].astype(np.float64)
-        cv = np.empty(ys.size)
-        for offset in sorted(range(-reach, reach + 1), key=abs):
-            value = (rounded + offset) * step
-            _run("points_cv", views, valid, weights is not None, positions, ys.astype(np.float64),
-                 xs.astype(np.float64), value, float(self._dark_floor), cv)
-            better = cv < best_cv
-            best_cv[better], best_at[better] = cv[better], value[better]
+        for column in range(offsets.size):  # the offset nearest the pixel's own wins a tie
+            better = cv[:, column] < best_cv
+            best_cv[better], best_at[better] = cv[better, column], tried[better, column]
         least[ys, xs], at[ys, xs] = best_cv, best_at
         return least, at
 

@@ -443,10 +443,10 @@ def in_focus_colour_near(values, weights, bins, shows, fill_share, other_bins, o
 
 
 @njit(cache=True)
-def _bin_boxes(bins, n_bins):
+def _bin_boxes(bins, n_bins, origin, n_rows, n_cols):
     """The bounding box ``(K, 4)`` (y_lo, y_hi, x_lo, x_hi; y_hi < 0: empty) of each bin's samples, those a
-    view lacks too (their boxes take stand-ins)."""
-    n_rows, n_cols = bins.shape
+    view lacks too (their boxes take stand-ins), in the window of ``n_rows x n_cols`` at ``origin`` of the
+    grid of ``bins`` (its coordinates)."""
     boxes = np.empty((n_bins, 4), np.int64)
     boxes[:, 0] = n_rows
     boxes[:, 1] = -1
@@ -454,7 +454,7 @@ def _bin_boxes(bins, n_bins):
     boxes[:, 3] = -1
     for y in range(n_rows):
         for x in range(n_cols):
-            k = bins[y, x]
+            k = bins[y + origin[0], x + origin[1]]
             if k < 0:
                 continue
             boxes[k, 0] = min(boxes[k, 0], y)
@@ -556,20 +556,21 @@ def _validity(z, size):
 
 
 @njit(cache=True)
-def _data_weight(weights, y, x, origin, own, image_shape):
-    """The weight of a view's data at ``(y, x)`` whatever its own sample's validity there: its weight there
-    over that validity, or where it has no sample (beyond its own image), its weight at the nearest pixel it
-    samples; ``own``: the view's shift (grid pixel + ``own``: where in its image the view samples it)."""
+def _data_weight(weights, y, x, origin, window, own, image_shape):
+    """The weight of a view's data at ``(y, x)`` of the window ``window (rows, cols)`` at ``origin`` of the
+    grid (``weights``: the whole grid's) whatever its own sample's validity there: its weight there over that
+    validity, or where it has no sample (beyond its own image), its weight at the nearest pixel of the window
+    it samples; ``own``: the view's shift (grid pixel + ``own``: where in its image the view samples it)."""
     u_y, u_x = y + origin[0] + own[0], x + origin[1] + own[1]
     valid = _validity(u_y, image_shape[0]) * _validity(u_x, image_shape[1])
     if valid > 0.0:
-        return weights[y, x] / valid
+        return weights[y + origin[0], x + origin[1]] / valid
     y_in = int(np.floor(min(max(u_y, 0.0), image_shape[0] - 1.0) - own[0] - origin[0] + 0.5))
     x_in = int(np.floor(min(max(u_x, 0.0), image_shape[1] - 1.0) - own[1] - origin[1] + 0.5))
-    if y_in < 0 or x_in < 0 or y_in >= weights.shape[0] or x_in >= weights.shape[1]:
+    if y_in < 0 or x_in < 0 or y_in >= window[0] or x_in >= window[1]:
         return 0.0
     valid = _validity(y_in + origin[0] + own[0], image_shape[0]) * _validity(x_in + origin[1] + own[1], image_shape[1])
-    return weights[y_in, x_in] / valid if valid > 0.0 else 0.0
+    return weights[y_in + origin[0], x_in + origin[1]] / valid if valid > 0.0 else 0.0
 
 
 @njit(cache=True)
@@ -712,6 +713,9 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
     ``box_taps (K, 4)``'s (narrowed by the blur the view's resampling gave
     it, :func:`napari_lfalias.render._view_taps`).
 
+    ``values``, ``weights``, ``bins``, ``confidence``, ``fill`` and
+    ``has_fill`` are the view's over the whole grid, read in the window at
+    ``origin``; the accumulators and ``seen`` are the window's.
     ``with_trust``: whether the confidence is composited into ``trust`` (a
     plane of the layers less where not).
 
@@ -730,11 +734,14 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
     (:func:`sampled_lines`); ``i``: this view; ``origin``: where this
     window's ``(0, 0)`` lies in the whole grid.
     """
-    n_rows, n_cols, n_ch = values.shape
+    n_rows, n_cols = seen.shape
+    n_ch = values.shape[2]
+    oy, ox = origin[0], origin[1]  # the window in the grid, read as np.uint64(y + oy), np.uint64(x + ox):
+    # unsigned, numba leaves out the negative-index wrap of each read (signed, the kernel took 5-15 % longer)
     n_order = order.shape[0]
     all_values, all_weights, all_bins, positions, residual, others, own, image_shape, slope, sampled_rows, \
         sampled_cols = whole
-    boxes = _bin_boxes(bins, taps.shape[0])
+    boxes = _bin_boxes(bins, taps.shape[0], origin, n_rows, n_cols)
     rank = np.empty(n_order, np.int64)  # each bin's position in order
     for o in range(n_order):
         rank[order[o]] = o
@@ -766,13 +773,14 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
         if not blur:  # the samples themselves, unit coverage
             for y in range(y0, y1):
                 for x in range(x0, x1):
-                    if bins[y, x] != k or not weights[y, x] > 0.0:
+                    gy, gx = np.uint64(y + oy), np.uint64(x + ox)
+                    if bins[gy, gx] != k or not weights[gy, gx] > 0.0:
                         covers[o, y, x] = 0.0
                         continue
                     covers[o, y, x] = 1.0
-                    t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[y, x]
+                    t = (seen[y, x] if occluders[o] >= 0 else 1.0) * weights[gy, gx]
                     if t > 0.0:
-                        _accumulate(num, den, blurred, trust, y, x, t, values[y, x], one, confidence[y, x], False,
+                        _accumulate(num, den, blurred, trust, y, x, t, values[gy, gx], one, confidence[gy, gx], False,
                                     with_trust)
             continue
         # planes: the colour, the coverage, with_trust the confidence, and where hides the last: where nearer
@@ -786,11 +794,12 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
         cols_in = np.zeros(x_hi + 1 - x_lo, np.int8)
         for y in range(y_lo, y_hi + 1):
             for x in range(x_lo, x_hi + 1):
-                if bins[y, x] != k:
+                gy, gx = np.uint64(y + oy), np.uint64(x + ox)
+                if bins[gy, gx] != k:
                     continue
-                if weights[y, x] > 0.0:
+                if weights[gy, gx] > 0.0:
                     for c in range(n_ch):
-                        layer[y - y0, x - x0, c] = values[y, x, c]
+                        layer[y - y0, x - x0, c] = values[gy, gx, c]
                 elif not (_may_stand_in(rows_in, y_lo + origin[0], y + origin[0], positions[:, 0], sampled_rows,
                                         others[i], i, residual[k])
                           and _may_stand_in(cols_in, x_lo + origin[1], x + origin[1], positions[:, 1], sampled_cols,
@@ -800,13 +809,14 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                     continue
                 layer[y - y0, x - x0, n_ch] = 1.0
                 if with_trust:
-                    layer[y - y0, x - x0, n_ch + 1] = confidence[y, x]
+                    layer[y - y0, x - x0, n_ch + 1] = confidence[gy, gx]
                 held += 1
         if hides:  # where a clearly nearer bin hides this one in this view, this surface goes on behind it
             for y in range(y0, y1):
                 for x in range(x0, x1):
-                    b = bins[y, x]
-                    if b >= 0 and rank[b] <= occluders[o] and weights[y, x] > 0.0:
+                    gy, gx = np.uint64(y + oy), np.uint64(x + ox)
+                    b = bins[gy, gx]
+                    if b >= 0 and rank[b] <= occluders[o] and weights[gy, gx] > 0.0:
                         layer[y - y0, x - x0, n_layer - 1] = 1.0
         summed = scratch[1, :size].reshape((y1 - y0, x1 - x0, n_layer))
         box = (2 * int(ny) + 3) * (2 * int(nx) + 3)
@@ -867,9 +877,9 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                 covers[o, y, x] = cover
                 if cover <= 0.0:
                     continue
-                w = weights[y, x]
+                w = weights[np.uint64(y + oy), np.uint64(x + ox)]
                 if not (full_y[y - y0] and full_x[x - x0]):  # the cell's valid share is in its coverage already
-                    w = _data_weight(weights, y, x, origin, own[i], image_shape)
+                    w = _data_weight(weights, y, x, origin, seen.shape, own[i], image_shape)
                 t = (seen[y, x] if occluders[o] >= 0 else 1.0) * w  # the cell counts by its weight
                 if t <= 0.0:
                     continue
@@ -884,27 +894,32 @@ def _composite_view(values, weights, bins, confidence, order, occluders, taps, b
                 seen[y, x] *= 1.0 - covers[lagged, y, x]
     for y in range(n_rows):
         for x in range(n_cols):
-            t = seen[y, x] * weights[y, x]
-            if t > 0.0 and has_fill[y, x]:
-                _accumulate(num, den, blurred, trust, y, x, t, fill[y, x], one, one, False, with_trust)
+            gy, gx = np.uint64(y + oy), np.uint64(x + ox)
+            t = seen[y, x] * weights[gy, gx]
+            if t > 0.0 and has_fill[gy, gx]:
+                _accumulate(num, den, blurred, trust, y, x, t, fill[gy, gx], one, one, False, with_trust)
 
 
 @njit(cache=True, parallel=True)
-def composite_views(values, weights, bins, confidence, order, occluders, taps, view_taps, fill, has_fill, whole,
+def composite_views(values, weights, bins, confidence, order, occluders, taps, view_taps, fill, has_fill, grid,
                     origin, n_chunks, num, den, blurred, trust, with_trust):
-    """Every view's layered composite, summed: ``num (n_chunks, Y, X, C)`` and the coverage ``den``,
-    the coverage of blurred bins ``blurred`` and, where ``with_trust``, the confidence-weighted coverage
-    ``trust`` (each ``(n_chunks, Y, X)``; ``trust`` left as it is otherwise), one chunk of views per thread.
+    """Every view's layered composite over a window of the grid, summed: ``num (n_chunks, Y, X, C)`` and
+    the coverage ``den``, the coverage of blurred bins ``blurred`` and, where ``with_trust``, the
+    confidence-weighted coverage ``trust`` (each ``(n_chunks, Y, X)``, the window's size; ``trust`` left as
+    it is otherwise), one chunk of views per thread.
 
-    ``taps (K, 4)``: the box of each bin as ``(n_y, f_y, n_x, f_x)`` (see
+    ``values (n, Y', X', C)``, ``weights``, ``bins`` and ``confidence (n, Y', X')``: the views over the
+    whole grid, read in the window at ``origin`` (``(y, x)``, its ``(0, 0)`` in the grid) in place, as are
+    ``fill (Y', X', C)`` and ``has_fill (Y', X')``. ``taps (K, 4)``: the box of each bin as
+    ``(n_y, f_y, n_x, f_x)`` (see
     :func:`napari_lfalias.baselines._box_taps`), ``view_taps (n, K, 4)``: the box each view blurs it by
     (see :func:`_composite_view`); ``order``: bins front to back; ``occluders``: for each
-    position in ``order``, the last position whose bins hide it (-1: none); ``fill (Y, X, C)`` and
-    ``has_fill (Y, X)``: the in-focus surface behind occluders' edges; ``whole``, ``origin``: the views
-    over the whole grid and where this window lies in it, for the stand-ins of samples a view lacks (see
-    :func:`_composite_view`).
+    position in ``order``, the last position whose bins hide it (-1: none); ``fill`` and ``has_fill``: the
+    in-focus surface behind occluders' edges; ``grid``: what else the stand-ins of samples a view lacks
+    read, ``whole`` of :func:`_composite_view` less its first three (the views over the grid).
     """
-    n, n_rows, n_cols = bins.shape
+    n = bins.shape[0]
+    n_rows, n_cols = den.shape[1], den.shape[2]
     for chunk in prange(n_chunks):
         covers = np.empty((order.shape[0], n_rows, n_cols), np.float32)
         seen = np.empty((n_rows, n_cols), np.float32)
@@ -912,4 +927,4 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, v
         for i in range(chunk, n, n_chunks):
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, view_taps[i],
                             fill, has_fill, num[chunk], den[chunk], blurred[chunk], trust[chunk], with_trust, covers,
-                            seen, scratch, whole, i, origin)
+                            seen, scratch, (values, weights, bins) + grid, i, origin)

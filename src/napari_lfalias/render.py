@@ -625,12 +625,13 @@ def _composite(layers, windows=None, trust=True):
     :class:`Layers` (:func:`napari_lfalias._render_kernels.composite_views`), over the whole image or, with
     ``windows`` (:func:`_windows`), exact on each window's inner part and 0 elsewhere."""
     stack, bins, sample_conf = layers.stack, layers.view_bins, layers.view_confidence
-    fill, has_fill = layers.fill, layers.has_fill
+    # read in place, window by window (a window's copies of the views cost as much as a fifth of its composite)
+    fill, has_fill, sample_conf = (np.ascontiguousarray(a) for a in (layers.fill, layers.has_fill, sample_conf))
     order, occluders, taps = layers.order, layers.occluders, layers.bins[2]
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
-    # every view over the whole grid, for the stand-ins of the samples a view lacks (_render_kernels._stand_in)
+    # what the stand-ins of the samples a view lacks read besides the views (_render_kernels._stand_in)
     positions = np.ascontiguousarray(stack.positions, np.float64)
     nearest_first = _nearest_first(positions)
     pad = (shape[0] - layers.disparity.shape[0]) // 2
@@ -639,20 +640,14 @@ def _composite(layers, windows=None, trust=True):
     sampled_cols = np.empty((bins.shape[0], bins.shape[2]), bool)
     _run("sampled_lines", stack.weights, sampled_rows, sampled_cols)
     view_taps = _view_taps(taps, stack.slope, positions)
-    whole_grid = (stack.values, stack.weights, bins, positions, np.ascontiguousarray(layers.bins[1] - stack.slope),
-                  nearest_first, own, np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows,
-                  sampled_cols)
+    grid = (positions, np.ascontiguousarray(layers.bins[1] - stack.slope), nearest_first, own,
+            np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows, sampled_cols)
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
-        part = (slice(y0, y1), slice(x0, x1))
-        every = (slice(None),) + part
         chunks = 4
         num = np.zeros((chunks, y1 - y0, x1 - x0, n_ch), np.float32)
         den, blurred, trusted = (np.zeros((chunks, y1 - y0, x1 - x0), np.float32) for _ in range(3))
-        _run("composite_views", *(np.ascontiguousarray(a[every]) for a in (stack.values, stack.weights, bins,
-                                                                             sample_conf)),
-             order, occluders, taps, view_taps, np.ascontiguousarray(fill[part]),
-             np.ascontiguousarray(has_fill[part]), whole_grid, np.array([y0, x0], np.int64), chunks, num, den, blurred,
-             trusted, bool(trust))
+        _run("composite_views", stack.values, stack.weights, bins, sample_conf, order, occluders, taps, view_taps,
+             fill, has_fill, grid, np.array([y0, x0], np.int64), chunks, num, den, blurred, trusted, bool(trust))
         inner = (slice(i0 - y0, i1 - y0), slice(j0 - x0, j1 - x0))
         for total, chunked in zip(sums, (num, den, blurred, trusted)):
             total[i0:i1, j0:j1] = chunked.sum(0)[inner]

@@ -103,8 +103,9 @@ def _bilinear_inside(image, valid, has_valid, y0, x0, fy, fx):
     return total, value
 
 
-#: Points per block of :func:`points_cv`: each view is sampled over a block's points in turn (points in
-#: raster order lie in a few rows of every view, which then stay in the cache).
+#: Samples of a view per block of :func:`points_cv` (its points times their disparities): each view is sampled
+#: over a block's points in turn (points in raster order lie in a few rows of every view, which then stay in
+#: the cache).
 POINTS_BLOCK = 256
 
 
@@ -119,7 +120,7 @@ def points_cv(views, valid, has_valid, positions, ys, xs, disparities, floor, ou
     """
     n = views.shape[0]
     m, n_tried = disparities.shape
-    block_size = max(POINTS_BLOCK // n_tried, 1)  # a block's samples of a view fill the same cache
+    block_size = max(POINTS_BLOCK // n_tried, 1)  # points
     for block in prange((m + block_size - 1) // block_size):
         start = block * block_size
         stop = min(start + block_size, m)

@@ -392,6 +392,60 @@ def test_a_few_windows_render_as_the_whole_image_where_a_hidden_surface_ends_nea
     np.testing.assert_allclose(part.image, whole.image, rtol=0, atol=ROUNDING)
 
 
+@pytest.mark.parametrize("slope", [4.0, 1.3])
+def test_the_pixels_of_one_surface_composited_at_once_are_those_composited_view_by_view(slope, monkeypatch):
+    # Where every view shows one surface around a pixel, the views are summed first and boxed once (by the
+    # groups of views whose resampling narrows their boxes alike: one group at 4, several at 1.3); the
+    # rendering equals the one composited view by view to float rounding, whole and in windows, with its
+    # blurred share and trust
+    scene = brick_room(n_views=5, size=160, seed=0)
+    renderer = SlopeRenderer(scene.lightfield, slope)
+    rng = np.random.default_rng(3)
+    confidence = rng.uniform(0.2, 1.0, scene.disparity.shape).astype(np.float32)
+    layers = renderer.layers(scene.disparity, confidence)
+    one_surface = render_module._single_surface(layers, np.pad(np.ones(scene.disparity.shape, bool), layers.reach))
+    assert one_surface is not None and one_surface[0][layers.inner].mean() > 0.3
+    within = np.zeros(scene.disparity.shape, bool)
+    within[40:120, 20:100] = True
+    # a pixel beside a depth edge and its neighbours of one surface: the window of its tile composites them all
+    single = one_surface[0][layers.inner]
+    beside = ndimage.binary_dilation(~single) & single
+    beside[:16], beside[-16:], beside[:, :16], beside[:, -16:] = False, False, False, False
+    y, x = np.argwhere(beside)[0]
+    edge_tile = np.zeros(scene.disparity.shape, bool)
+    edge_tile[y - 1:y + 2, x - 1:x + 2] = True
+    assert (edge_tile & single).any() and (edge_tile & ~single).any()
+    at_once = []  # how many pixels the shortcut composited
+    sums = render_module._single_surface_sums
+    monkeypatch.setattr(render_module, "_single_surface_sums",
+                        lambda layers, where, *args: at_once.append(where.sum()) or sums(layers, where, *args))
+    renderings = {}
+    for shortcut in (False, True):
+        renderer.SHORTCUT = shortcut
+        whole = renderer.composite(layers)
+        renderings[shortcut] = (whole, renderer.composite(layers, within=within, elsewhere=whole),
+                                renderer.composite(layers, within=edge_tile, elsewhere=whole))
+    assert sum(at_once) > 500
+    for exact, fast in zip(renderings[False], renderings[True]):
+        for name in ("image", "blurred_share", "trust"):
+            np.testing.assert_allclose(getattr(fast, name), getattr(exact, name), rtol=0, atol=ROUNDING)
+
+
+def test_a_vignetted_light_field_has_no_pixel_of_one_surface_at_full_weight():
+    # the shortcut sums the views at weight 1: a calibrated vignette's weights below 1 keep every pixel
+    # composited view by view
+    scene = brick_room(n_views=4, size=64, seed=0)
+    lf = scene.lightfield
+    yy, xx = np.mgrid[:64, :64]
+    falloff = (1.0 - 0.3 * ((yy - 31.5) ** 2 + (xx - 31.5) ** 2) / 31.5 ** 2).astype(np.float32)
+    vignetted = lfa.LightField(lf.data, lf.positions, weights=np.broadcast_to(falloff, lf.data.shape[:4]).copy())
+    renderer = SlopeRenderer(vignetted, 4.0)
+    layers = renderer.layers(scene.disparity)
+    wanted = np.pad(np.ones(scene.disparity.shape, bool), layers.reach)
+    assert render_module._single_surface(layers, wanted) is None
+    assert render_module._single_surface(SlopeRenderer(lf, 4.0).layers(scene.disparity), wanted) is not None
+
+
 def test_a_composite_without_trust_renders_the_same_image_and_no_trust():
     # the confidence plane left out of the layers changes nothing else: the image and the blurred share as
     # with it (to float rounding: the box passes vectorise the planes differently), whole and in windows

@@ -15,6 +15,9 @@
 - ``in_focus_colour`` (``in_focus_colour_near``: for bins that another
   set's are but here and there): the colour of the in-focus background the views
   show at each pixel (what fills the cells an occluder's blur uncovers).
+- ``single_surface``, ``group_sums``: the bin every view shows at a pixel
+  at full weight, and the views' samples summed by groups (the pixels of
+  one surface are composited by summing the views first, then boxing).
 - ``composite_views``: per view, its shifted samples are split into the
   disparity bins; each bin (premultiplied colour, coverage, confidence)
   is blurred by its own box (the footprint of one view's cell of the
@@ -30,7 +33,7 @@ from numba import njit, prange
 from ._baseline_kernels import box_image_into
 
 __all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour", "in_focus_colour_near",
-           "sampled_lines", "composite_views"]
+           "sampled_lines", "composite_views", "single_surface", "group_sums"]
 
 
 @njit(cache=True, inline="always")
@@ -928,3 +931,38 @@ def composite_views(values, weights, bins, confidence, order, occluders, taps, v
             _composite_view(values[i], weights[i], bins[i], confidence[i], order, occluders, taps, view_taps[i],
                             fill, has_fill, num[chunk], den[chunk], blurred[chunk], trust[chunk], with_trust, covers,
                             seen, scratch, (values, weights, bins) + grid, i, origin)
+
+
+@njit(cache=True, parallel=True)
+def single_surface(bins, weights, out):
+    """``out (Y, X)`` int16: the bin that every view's sample shows at ``(y, x)`` with weight exactly 1 (of
+    ``bins`` and ``weights (n, Y, X)``), -1 where the views' bins differ or a weight is not 1."""
+    n, n_rows, n_cols = bins.shape
+    for y in prange(n_rows):
+        row = out[y]
+        for x in range(n_cols):
+            row[x] = bins[0, y, x] if weights[0, y, x] == 1.0 else -1
+        for i in range(1, n):
+            view_bins, view_weights = bins[i, y], weights[i, y]
+            for x in range(n_cols):
+                if view_bins[x] != row[x] or view_weights[x] != 1.0:
+                    row[x] = -1
+
+
+@njit(cache=True, parallel=True)
+def group_sums(values, confidence, group, origin, out):
+    """``out (G, Y, X, C + 1)`` float32: the colour ``values (n, Y', X', C)`` and the confidence ``(n, Y',
+    X')`` of the views of each group (``group (n,)``: each view's, ``0 .. G - 1``) summed, over the window of
+    ``out``'s ``Y x X`` at ``origin`` of the views' grid."""
+    n, n_ch = values.shape[0], values.shape[3]
+    n_rows, n_cols = out.shape[1], out.shape[2]
+    for y in prange(n_rows):
+        out[:, y] = 0.0
+        gy = np.uint64(y + origin[0])
+        for i in range(n):
+            total = out[group[i], y]
+            for x in range(n_cols):
+                gx = np.uint64(x + origin[1])
+                for c in range(n_ch):
+                    total[x, c] += values[i, gy, gx, c]
+                total[x, n_ch] += confidence[i, gy, gx]

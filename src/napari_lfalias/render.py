@@ -404,6 +404,9 @@ class SlopeRenderer:
     TILE = 32
     #: Render the whole image where the tiles with their margins would cover more than this share of it.
     MOST_PARTIAL = 0.7
+    #: Composite the pixels whose views all show one surface around them at once (:func:`_single_surface`),
+    #: the others view by view.
+    SHORTCUT = True
 
     def __init__(self, lf, slope, naive=None):
         from .baselines import view_spacing
@@ -495,9 +498,8 @@ class SlopeRenderer:
             return elsewhere
         slope, spacing = self.slope, self.spacing
         inner = layers.inner
-        windows = None if within is None else _windows(np.pad(within, layers.reach), layers.reach, self.TILE,
-                                                       self.MOST_PARTIAL)
-        num, den, blurred, trusted = (total[inner] for total in _composite(layers, windows, trust))
+        sums, windows, done = self._sums(layers, within, trust)
+        num, den, blurred, trusted = (total[inner] for total in sums)
         seen = den > 1e-6
         image = np.divide(num, den[..., None], out=np.zeros_like(num), where=seen[..., None])
         share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
@@ -506,16 +508,34 @@ class SlopeRenderer:
         in_focus = (np.abs(layers.disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
         rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
                               share.astype(np.float32), trusted if trust else None)
-        if windows is None:
+        if windows is None or within is None:
             return rendering
-        done = np.zeros(layers.view_bins.shape[1:], bool)
-        for _, (y0, y1, x0, x1) in windows:
-            done[y0:y1, x0:x1] = True
         done = done[inner]
         return Rendering(*(None if part is None or other is None else
                            np.where(done[..., None] if part.ndim == 3 else done, part, other)
                            for part, other in zip((rendering.image, rendering.blurred_share, rendering.trust),
                                                   (elsewhere.image, elsewhere.blurred_share, elsewhere.trust))))
+
+    def _sums(self, layers, within, trust):
+        """The composite sums of ``layers`` (:func:`_composite`) where ``within`` (``None``: everywhere) asks
+        for them; the windows composited view by view (``None``: the whole grid), and where the sums hold
+        (``(Y', X')`` bool over the grid): the windows' inner parts and, with :attr:`SHORTCUT`, the pixels
+        of one surface outside them, composited at once (:func:`_single_surface_sums`)."""
+        reach = layers.reach
+        wanted = np.pad(np.ones(layers.disparity.shape, bool) if within is None else within, reach)
+        single = _single_surface(layers, wanted) if self.SHORTCUT else None
+        exact = wanted if single is None else wanted & ~single[0]
+        windows = None if within is None and single is None else _windows(exact, reach, self.TILE, self.MOST_PARTIAL)
+        sums = _composite(layers, windows, trust)
+        done = np.zeros(wanted.shape, bool)
+        for _, (y0, y1, x0, x1) in windows or ():
+            done[y0:y1, x0:x1] = True
+        if windows is not None and single is not None:
+            shortcut = single[0] & ~done
+            if shortcut.any():
+                _single_surface_sums(layers, shortcut, single[1], trust, sums)
+                done |= shortcut
+        return sums, windows, done
 
 
 @dataclass(frozen=True)
@@ -618,6 +638,95 @@ def _windows(within, margin, tile, most):
             area += (outer[1] - outer[0]) * (outer[3] - outer[2])
             c = end
     return None if area > most * n_rows * n_cols else windows
+
+
+def _single_surface(layers, wanted):
+    """The pixels of ``wanted`` (over the grid of :class:`Layers`) whose views all show one surface around
+    them, and the bin every view shows at each pixel where they all show the same at full weight (-1
+    elsewhere): ``(where, surface)``, or ``None`` where there is no such pixel.
+
+    Such a pixel is one where, within the widest box's reach, every view's
+    sample shows the same bin with weight 1 (nothing nearer covers it,
+    nothing is missing, no stand-in is needed, no vignetting) and the boxes'
+    taps all lie within the views' images. There every view adds the box
+    mean of its own samples to the composite with weight 1, so the views can
+    be summed first and boxed once (:func:`_single_surface_sums`). Away from
+    depth edges and the image's border that is most of an image (63 and 77 %
+    of the brick room 8x8 at 512 px at slopes -4 and 4, its estimate given).
+    """
+    stack, bins, taps = layers.stack, layers.view_bins, layers.bins[2]
+    shape, reach = bins.shape[1:], layers.reach
+    surface = np.empty(shape, np.int16)
+    _run("single_surface", bins, stack.weights, surface)
+    size = 2 * reach + 1
+    lowest = ndimage.minimum_filter(surface, size, mode="constant", cval=-1)
+    where = (lowest >= 0) & (lowest == ndimage.maximum_filter(surface, size, mode="constant", cval=-1)) & wanted
+    if not where.any():
+        return None
+    slope, positions = stack.slope, np.asarray(stack.positions, np.float64)
+    view_taps = _view_taps(taps, slope, positions)
+    # where a box reaches beyond a view's image the composite counts its taps by their validity instead
+    own = slope * positions - (shape[0] - layers.disparity.shape[0]) // 2
+    residual = layers.bins[1] - slope
+    for k in np.unique(surface[where]):
+        if not np.any(taps[k]):
+            continue
+        spread = abs(slope / residual[k])
+        for axis in (0, 1):
+            z = np.arange(shape[axis])[None, :] + own[:, axis:axis + 1]
+            half = (view_taps[:, k, 2 * axis] + 0.5 + view_taps[:, k, 2 * axis + 1])[:, None] * spread
+            inside = ((z - half >= 1e-6) & (z + half <= layers.disparity.shape[axis] - 1 - 1e-6)).all(axis=0)
+            where &= ~((surface == k) & ~(inside[:, None] if axis == 0 else inside[None, :]))
+    return (where, surface) if where.any() else None
+
+
+def _single_surface_sums(layers, where, surface, trust, sums):
+    """Put into the composite sums ``sums`` (``num, den, blurred, trust``, as :func:`_composite` makes them,
+    to float rounding) their values at the pixels ``where`` whose views all show one surface around them
+    (:func:`_single_surface`; ``surface``: its bin there): the views summed by the groups that share
+    their boxes (a few at most: a view's boxes are narrowed by its resampling offset, :func:`_view_taps`),
+    each group's sum boxed once per bin."""
+    from ._baseline_kernels import box_image_into
+
+    stack, taps = layers.stack, layers.bins[2]
+    shape, reach = surface.shape, layers.reach
+    positions = np.asarray(stack.positions, np.float64)
+    view_taps = _view_taps(taps, stack.slope, positions)
+    present = np.unique(surface[where])
+    _, group = np.unique(view_taps[:, present].reshape(len(positions), -1), axis=0, return_inverse=True)
+    group = np.ascontiguousarray(group.reshape(-1), np.int64)
+    first_of = [int(np.flatnonzero(group == g)[0]) for g in range(group.max() + 1)]
+    ys, xs = np.nonzero(where)
+    y0, y1 = max(ys.min() - reach, 0), min(ys.max() + reach + 1, shape[0])
+    x0, x1 = max(xs.min() - reach, 0), min(xs.max() + reach + 1, shape[1])
+    n_ch = stack.values.shape[-1]
+    summed = np.empty((len(first_of), y1 - y0, x1 - x0, n_ch + 1), np.float32)
+    _run("group_sums", stack.values, np.ascontiguousarray(layers.view_confidence), group,
+         np.array([y0, x0], np.int64), summed)
+    where, surface = where[y0:y1, x0:x1], surface[y0:y1, x0:x1]
+    num, den, blurred, trusted = (total[y0:y1, x0:x1] for total in sums)
+    n_views = np.float32(len(positions))
+    for k in present:
+        pixels = where & (surface == k)
+        ys, xs = np.nonzero(pixels)
+        crop = (slice(max(ys.min() - reach, 0), ys.max() + reach + 1),
+                slice(max(xs.min() - reach, 0), xs.max() + reach + 1))
+        total = np.zeros(summed.shape[1:], np.float32)[crop]
+        for g, first in enumerate(first_of):
+            part = np.ascontiguousarray(summed[g][crop])
+            if np.any(taps[k]):
+                ny, fy, nx, fx = view_taps[first, k]
+                boxed = np.empty_like(part)
+                with _KERNEL_LOCK:
+                    box_image_into(part, int(ny), fy, int(nx), fx, boxed, np.empty_like(part))
+                part = boxed / np.float32((2 * ny + 1 + 2 * fy) * (2 * nx + 1 + 2 * fx))
+            total += part
+        inside = pixels[crop]
+        num[crop][inside] = total[inside, :n_ch]
+        den[crop][inside] = n_views
+        blurred[crop][inside] = n_views if np.any(taps[k]) else 0.0
+        if trust:
+            trusted[crop][inside] = total[inside, n_ch]
 
 
 def _composite(layers, windows=None, trust=True):

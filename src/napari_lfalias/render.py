@@ -583,6 +583,17 @@ class Layers:
         pad = self.reach
         return (slice(pad, pad + self.disparity.shape[0]), slice(pad, pad + self.disparity.shape[1]))
 
+    @functools.cached_property
+    def view_taps(self):
+        """Each view's box taps ``(n, K, 4)`` (:func:`_view_taps`), made once."""
+        return _view_taps(self.bins[2], self.stack.slope, np.asarray(self.stack.positions, np.float64))
+
+    @functools.cached_property
+    def own(self):
+        """Each view's shift ``(n, 2)``: grid pixel + ``own[i]`` is where view ``i`` samples it in its image."""
+        pad = (self.view_bins.shape[1] - self.disparity.shape[0]) // 2
+        return np.ascontiguousarray(self.stack.slope * np.asarray(self.stack.positions, np.float64) - pad)
+
     def differs_from(self, other):
         """``(Y, X)`` bool: the pixels whose rendering may differ from that of ``other`` (layers with the
         same bins): where what is composited differs, grown by the blur's :attr:`reach`."""
@@ -663,10 +674,8 @@ def _single_surface(layers, wanted):
     where = (lowest >= 0) & (lowest == ndimage.maximum_filter(surface, size, mode="constant", cval=-1)) & wanted
     if not where.any():
         return None
-    slope, positions = stack.slope, np.asarray(stack.positions, np.float64)
-    view_taps = _view_taps(taps, slope, positions)
+    slope, view_taps, own = stack.slope, layers.view_taps, layers.own
     # where a box reaches beyond a view's image the composite counts its taps by their validity instead
-    own = slope * positions - (shape[0] - layers.disparity.shape[0]) // 2
     residual = layers.bins[1] - slope
     for k in np.unique(surface[where]):
         if not np.any(taps[k]):
@@ -690,10 +699,9 @@ def _single_surface_sums(layers, where, surface, trust, sums):
 
     stack, taps = layers.stack, layers.bins[2]
     shape, reach = surface.shape, layers.reach
-    positions = np.asarray(stack.positions, np.float64)
-    view_taps = _view_taps(taps, stack.slope, positions)
+    view_taps = layers.view_taps
     present = np.unique(surface[where])
-    _, group = np.unique(view_taps[:, present].reshape(len(positions), -1), axis=0, return_inverse=True)
+    _, group = np.unique(view_taps[:, present].reshape(len(view_taps), -1), axis=0, return_inverse=True)
     group = np.ascontiguousarray(group.reshape(-1), np.int64)
     first_of = [int(np.flatnonzero(group == g)[0]) for g in range(group.max() + 1)]
     ys, xs = np.nonzero(where)
@@ -705,7 +713,7 @@ def _single_surface_sums(layers, where, surface, trust, sums):
          np.array([y0, x0], np.int64), summed)
     where, surface = where[y0:y1, x0:x1], surface[y0:y1, x0:x1]
     num, den, blurred, trusted = (total[y0:y1, x0:x1] for total in sums)
-    n_views = np.float32(len(positions))
+    n_views = np.float32(len(view_taps))
     for k in present:
         pixels = where & (surface == k)
         ys, xs = np.nonzero(pixels)
@@ -743,13 +751,11 @@ def _composite(layers, windows=None, trust=True):
     # what the stand-ins of the samples a view lacks read besides the views (_render_kernels._stand_in)
     positions = np.ascontiguousarray(stack.positions, np.float64)
     nearest_first = _nearest_first(positions)
-    pad = (shape[0] - layers.disparity.shape[0]) // 2
-    own = np.ascontiguousarray(stack.slope * positions - pad)  # grid pixel + own[i]: where view i samples it
     sampled_rows = np.empty(bins.shape[:2], bool)
     sampled_cols = np.empty((bins.shape[0], bins.shape[2]), bool)
     _run("sampled_lines", stack.weights, sampled_rows, sampled_cols)
-    view_taps = _view_taps(taps, stack.slope, positions)
-    grid = (positions, np.ascontiguousarray(layers.bins[1] - stack.slope), nearest_first, own,
+    view_taps = layers.view_taps
+    grid = (positions, np.ascontiguousarray(layers.bins[1] - stack.slope), nearest_first, layers.own,
             np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows, sampled_cols)
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         chunks = 4

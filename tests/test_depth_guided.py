@@ -58,6 +58,26 @@ def test_a_light_field_without_texture_comes_back_as_the_naive_refocus():
         assert not detector.detect(slope).mask.any()
 
 
+@pytest.mark.parametrize("position", [(0.0, 0.0), (1.0, -2.0)])
+def test_a_light_field_of_one_view_comes_back_as_its_refocus(position):
+    rng = np.random.default_rng(0)
+    lf = lfa.LightField(rng.random((1, 1, 40, 40, 3), np.float32), np.array([[position]]))
+    for slope in (0.0, 2.5):
+        result = lfa.reduce_aliasing(lf, slope)
+        np.testing.assert_array_equal(result.image, lfa.refocus(lf, slope))
+        assert not result.level.any() and not result.detections[0].mask.any()
+        np.testing.assert_array_equal(lfa.antialiased_refocus(lf, slope), lfa.refocus(lf, slope))
+
+
+@pytest.mark.parametrize("function", ["reduce_aliasing", "antialiased_refocus"])
+def test_a_bad_disparity_given_with_one_view_is_still_named(function):
+    lf = lfa.LightField(np.full((1, 1, 40, 40, 3), 0.5, np.float32))
+    call = {"reduce_aliasing": lambda: lfa.reduce_aliasing(lf, 1.0, disparity=np.zeros((40, 39))),
+            "antialiased_refocus": lambda: lfa.antialiased_refocus(lf, 1.0, np.zeros((40, 39)))}[function]
+    with pytest.raises(ParameterError, match="disparity"):
+        call()
+
+
 @pytest.mark.parametrize("disparity, slope", [(2.0, 0.0), (-1.5, 1.5)])
 def test_a_smooth_texture_out_of_focus_comes_back_as_the_naive_refocus(disparity, slope):
     # The estimate is off by 0.03-0.05 px near the border, and the rendering there differed from the naive

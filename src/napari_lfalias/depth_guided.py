@@ -283,6 +283,13 @@ class DepthGuide:
             self._estimate = (disparity.astype(np.float32), confidence)
         return self._estimate
 
+    def check_estimate(self):
+        """Make the :attr:`estimate` now (a disparity given is checked, a bad one named, before any
+        rendering), unless the light field has one view and none was given: one view cannot alias, so
+        nothing of it is rendered and there is nothing to estimate."""
+        if self.lf.n_views > 1 or self._given is not None:
+            self.estimate
+
     def larger_first(self, slope):
         """Whether larger disparities are in front, at ``slope``.
 

@@ -359,7 +359,7 @@ def _reduce_depth_guided(detector, slope, threshold):
 
     slope = _validate.finite_float("slope", slope)
     guide = detector.guide
-    disparity, _ = guide.estimate
+    guide.check_estimate()
     yield (1, 4)
     refocused = guide.naive(slope)
     yield (2, 4)
@@ -372,9 +372,12 @@ def _reduce_depth_guided(detector, slope, threshold):
         changed = weight > 0
     else:
         image, changed = refocused.copy(), replaced
-    level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
-                                                    MAX_LEVEL), 0).astype(np.uint8)
-    level[changed & (level == 0)] = 1
+    level = np.zeros(changed.shape, np.uint8)
+    if changed.any():
+        disparity = guide.estimate[0]
+        level = np.where(changed, levels_from_disparity(disparity, slope, view_spacing(detector.lf.positions),
+                                                        MAX_LEVEL), 0).astype(np.uint8)
+        level[changed & (level == 0)] = 1
     yield (4, 4)
     return Reduction(image, level, detection.cv, refocused.copy(), [detection])
 

@@ -790,7 +790,8 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
     -------
     image : ndarray, shape (Y, X, C), float32
         The rendering; the naive refocus exactly where the pixel is in
-        focus and no defocused surface covers it.
+        focus and no defocused surface covers it, and everywhere for a
+        light field of one view (which has no aperture to render).
 
     Raises
     ------
@@ -832,5 +833,7 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
         raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
     slope = _validate.finite_float("slope", slope)
     guide = DepthGuide(lf, disparity, nearer=nearer)
-    guide.estimate  # a bad disparity is named before any rendering
+    guide.check_estimate()
+    if lf.n_views == 1:  # no aperture to render: the view's refocus is all there is
+        return refocus(lf, slope)
     return guide.rendering(slope).image

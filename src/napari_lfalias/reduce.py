@@ -345,7 +345,8 @@ def _reduce_depth_guided(detector, slope, threshold):
     """``method="depth"``: the pixels whose cautious score exceeds the threshold take the dense-aperture
     rendering (:mod:`.depth_guided`), and so do the pixels connected to them whose score exceeds
     :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and does not depend on where
-    the depth edges are (:func:`_replaced`). The detection returned is the plain predicted error
+    the depth edges are, and the faint aliasing anywhere (:func:`_replaced`). The detection returned is
+    the plain predicted error
     (:meth:`~napari_lfalias.depth_guided.DepthGuide.predicted_errors`).
 
     Yields ``(done, 4)`` after the disparity, the naive refocus, the
@@ -384,20 +385,29 @@ def _reduce_depth_guided(detector, slope, threshold):
 
 def _replaced(guide, slope, threshold):
     """The pixels the depth-guided reduction replaces: those whose cautious score
-    (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`) exceeds the threshold, and their fringe
+    (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`) exceeds the threshold; their fringe
     (hysteresis): the pixels connected to them whose score exceeds
     :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and the rendering's
-    dependence on where the depth edges are (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`).
+    dependence on where the depth edges are (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`);
+    and the faint aliasing anywhere: the pixels whose score exceeds
+    :data:`~napari_lfalias.depth_guided.FAINT_FRACTION` of the threshold and
+    :data:`~napari_lfalias.depth_guided.FAINT_MARGIN` times that dependence, where the rendering's blur
+    lies within what the views hold (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`).
     Below the threshold the rendering is trusted only where the naive refocus is farther from it than the
     rendering is from itself with the edges moved."""
-    from .depth_guided import REPLACE_FRACTION
+    from .depth_guided import FAINT_FRACTION, FAINT_MARGIN, REPLACE_FRACTION
 
     score = guide.cautious_scores(slope)
+    candidates = score > np.float32(FAINT_FRACTION * threshold)  # no pixel below this is replaced
+    if not candidates.any():
+        return candidates
+    spread = guide.edge_spread(slope)
+    replaced = candidates & (np.float32(FAINT_MARGIN) * spread < score) & guide.within_support(slope)
     seeds = score > np.float32(threshold)
-    if not seeds.any():
-        return seeds
-    fringe = (score > np.float32(REPLACE_FRACTION * threshold)) & (guide.edge_spread(slope) < score)
-    return ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
+    if seeds.any():
+        fringe = (score > np.float32(REPLACE_FRACTION * threshold)) & (spread < score)
+        replaced |= ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
+    return replaced
 
 
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,

@@ -154,6 +154,21 @@ def test_faint_aliasing_of_which_no_pixel_reaches_the_threshold_is_still_reduced
     assert metrics.psnr(lfa.reduce_aliasing(lf, slope, detector=detector).image, reference) < naive_psnr + 1
 
 
+def test_faint_aliasing_is_left_where_the_views_weigh_their_samples_unevenly(monkeypatch):
+    """Calibrated vignetting weighs each view's samples by its vignette: the rendering is not sure enough
+    there for the faint rule, which then replaces nothing the reduction without it would not."""
+    scene = layered_scene([(4.5, "fine", (0.2, 0.5, 0.2, 0.6)), (-2.7, "fine", None)], n_views=7, size=96,
+                          seed=1)
+    lf, slope = as_user_has_it(capture(scene.lightfield, vignetting=0.8, calibrated=True, seed=1)), 1.3
+    detector = lfa.AliasingDetector(lf)
+    assert not detector.guide.even_weights.any()
+    score = detector.guide.cautious_scores(slope)
+    assert np.mean(score > depth_guided.FAINT_FRACTION * THRESHOLD) > 0.3  # what the faint rule would take
+    reduced = lfa.reduce_aliasing(lf, slope, detector=detector).image
+    monkeypatch.setattr(depth_guided, "FAINT_FRACTION", 1.0)
+    np.testing.assert_array_equal(reduced, lfa.reduce_aliasing(lf, slope, detector=detector).image)
+
+
 # -- vignetting --------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -392,7 +392,8 @@ def _replaced(guide, slope, threshold):
     and the faint aliasing anywhere: the pixels whose score exceeds
     :data:`~napari_lfalias.depth_guided.FAINT_FRACTION` of the threshold and
     :data:`~napari_lfalias.depth_guided.FAINT_MARGIN` times that dependence, where the rendering's blur
-    lies within what the views hold (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`).
+    lies within what the views hold (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`) and
+    the views weigh their samples alike (:attr:`~napari_lfalias.depth_guided.DepthGuide.even_weights`).
     Below the threshold the rendering is trusted only where the naive refocus is farther from it than the
     rendering is from itself with the edges moved."""
     from .depth_guided import FAINT_FRACTION, FAINT_MARGIN, REPLACE_FRACTION
@@ -403,6 +404,8 @@ def _replaced(guide, slope, threshold):
         return candidates
     spread = guide.edge_spread(slope)
     replaced = candidates & (np.float32(FAINT_MARGIN) * spread < score) & guide.within_support(slope)
+    if guide.even_weights is not None:
+        replaced &= guide.even_weights
     seeds = score > np.float32(threshold)
     if seeds.any():
         fringe = (score > np.float32(REPLACE_FRACTION * threshold)) & (spread < score)

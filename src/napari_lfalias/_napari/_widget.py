@@ -717,14 +717,15 @@ class AliasingWidget(QWidget):
             self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels from levels up "
                              f"to {highest}")
             return
-        from ..depth_guided import REPLACE_FRACTION
+        from ..depth_guided import FAINT_FRACTION, REPLACE_FRACTION
 
         self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
         self._show_mask_source(params.method, slope)
         self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels take what a dense "
                          f"aperture records (of the flagged ones, magenta, those the rendering is sure of, and "
                          f"those next to them above T/{1 / REPLACE_FRACTION:g} where it does not hinge on its depth "
-                         "edges); the whole anti-aliased rendering goes to a hidden layer")
+                         f"edges, and the faint aliasing above T/{1 / FAINT_FRACTION:g} it is sure of); the whole "
+                         "anti-aliased rendering goes to a hidden layer")
 
     def _show_disparity(self, estimate):
         params = {"disparity_range": [float(v) for v in estimate.disparity_range],

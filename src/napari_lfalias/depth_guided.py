@@ -862,12 +862,13 @@ class DepthGuide:
         weight[weight < 0.02] = 0.0
         return weight
 
-    def blend(self, naive, rendered, mask, weight=None):
+    @staticmethod
+    def blend(naive, rendered, mask, weight=None):
         """``naive`` with ``rendered`` in the ``mask`` pixels, by :meth:`blend_weight` (``weight``: that of
         ``mask``, where already made)."""
         if not mask.any():
             return naive.copy()
-        weight = self.blend_weight(mask) if weight is None else weight
+        weight = DepthGuide.blend_weight(mask) if weight is None else weight
         return (naive + weight[..., None] * (rendered - naive)).astype(np.float32)
 
 

@@ -384,31 +384,74 @@ def _reduce_depth_guided(detector, slope, threshold):
 
 
 def _replaced(guide, slope, threshold):
-    """The pixels the depth-guided reduction replaces: those whose cautious score
-    (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`) exceeds the threshold; their fringe
-    (hysteresis): the pixels connected to them whose score exceeds
-    :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION` of the threshold and the rendering's
-    dependence on where the depth edges are (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`);
-    and the faint aliasing anywhere: the pixels whose score exceeds
-    :data:`~napari_lfalias.depth_guided.FAINT_FRACTION` of the threshold and
-    :data:`~napari_lfalias.depth_guided.FAINT_MARGIN` times that dependence, where the rendering's blur
-    lies within what the views hold (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`) and
-    the views weigh their samples alike (:attr:`~napari_lfalias.depth_guided.DepthGuide.even_weights`).
-    Below the threshold the rendering is trusted only where the naive refocus is farther from it than the
-    rendering is from itself with the edges moved."""
-    from .depth_guided import FAINT_FRACTION, FAINT_MARGIN, REPLACE_FRACTION
+    """The pixels the depth-guided reduction replaces at ``slope``: :func:`replaced_pixels` of the guide's
+    cautious scores (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`), their edge spread
+    (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`) and where the faint aliasing may be
+    taken (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`, where the views weigh their
+    samples alike: :attr:`~napari_lfalias.depth_guided.DepthGuide.even_weights`)."""
+    from .depth_guided import FAINT_FRACTION
 
     score = guide.cautious_scores(slope)
-    candidates = score > np.float32(FAINT_FRACTION * threshold)  # no pixel below this is replaced
-    if not candidates.any():
-        return candidates
-    spread = guide.edge_spread(slope)
-    replaced = candidates & (np.float32(FAINT_MARGIN) * spread < score) & guide.within_support(slope)
+    if not (score > np.float32(FAINT_FRACTION * threshold)).any():  # nothing to replace: no spread needed
+        return np.zeros(score.shape, bool)
+    faint_where = guide.within_support(slope)
     if guide.even_weights is not None:
-        replaced &= guide.even_weights
+        faint_where = faint_where & guide.even_weights
+    return replaced_pixels(score, guide.edge_spread(slope), threshold, faint_where)
+
+
+def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fraction=None, faint_fraction=None,
+                    faint_margin=None):
+    """The depth-guided reduction's rule: which pixels take the rendering.
+
+    Those whose cautious score exceeds ``threshold``; their fringe
+    (hysteresis): the pixels connected to them whose score exceeds
+    ``replace_fraction`` of the threshold and the rendering's dependence
+    on where the depth edges are (``spread``); and the faint aliasing
+    anywhere in ``faint_where``: the pixels whose score exceeds
+    ``faint_fraction`` of the threshold and ``faint_margin`` times that
+    dependence. Below the threshold the rendering is trusted only where
+    the naive refocus is farther from it than the rendering is from itself
+    with the edges moved.
+
+    Parameters
+    ----------
+    score, spread : ndarray, shape (Y, X)
+        The cautious score of the naive refocus and the rendering's edge
+        spread (:class:`~napari_lfalias.depth_guided.DepthGuide`).
+    threshold : float
+        ``T``.
+    faint_where : ndarray of bool, shape (Y, X), optional
+        Where the faint aliasing may be taken (default: everywhere).
+    replace_fraction, faint_fraction, faint_margin : float, optional
+        Default :data:`~napari_lfalias.depth_guided.REPLACE_FRACTION`,
+        :data:`~napari_lfalias.depth_guided.FAINT_FRACTION`,
+        :data:`~napari_lfalias.depth_guided.FAINT_MARGIN` (other values
+        let ``benchmarks/replacement_rules.py`` compare rules).
+
+    Returns
+    -------
+    ndarray of bool, shape (Y, X)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> score = np.array([[0.03, 0.006, 0.0], [0.0, 0.0, 0.004]], np.float32)
+    >>> replaced_pixels(score, np.zeros_like(score), 0.02).astype(int)
+    array([[1, 1, 0],
+           [0, 0, 1]])
+    """
+    from . import depth_guided
+
+    replace_fraction = depth_guided.REPLACE_FRACTION if replace_fraction is None else replace_fraction
+    faint_fraction = depth_guided.FAINT_FRACTION if faint_fraction is None else faint_fraction
+    faint_margin = depth_guided.FAINT_MARGIN if faint_margin is None else faint_margin
+    replaced = (score > np.float32(faint_fraction * threshold)) & (np.float32(faint_margin) * spread < score)
+    if faint_where is not None:
+        replaced &= faint_where
     seeds = score > np.float32(threshold)
     if seeds.any():
-        fringe = (score > np.float32(REPLACE_FRACTION * threshold)) & (spread < score)
+        fringe = (score > np.float32(replace_fraction * threshold)) & (spread < score)
         replaced |= ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
     return replaced
 

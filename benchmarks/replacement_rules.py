@@ -44,13 +44,10 @@ def dump_slope(lf, slope, reference, truth, estimate, path):
     detector = lfa.AliasingDetector(lf, disparity=estimate)
     result = lfa.reduce_aliasing(lf, slope, detector=detector)
     guide = detector.guide
-    faint_where = guide.within_support(slope)
-    if guide.even_weights is not None:
-        faint_where = faint_where & guide.even_weights
     np.savez_compressed(path, slope=slope, reference=reference.astype(np.float32), truth=truth,
                         naive=result.refocused, default=result.image,
                         rendering=guide.scored_rendering(slope).image, score=guide.cautious_scores(slope),
-                        spread=guide.edge_spread(slope), faint_where=faint_where)
+                        spread=guide.edge_spread(slope), faint_where=guide.faint_where(slope))
 
 
 def dump(splits, out, size=256):

@@ -522,6 +522,12 @@ class DepthGuide:
 
         return self._kept(slope, "within support", make)
 
+    def faint_where(self, slope):
+        """Where the reduction may take the faint aliasing at ``slope`` (:data:`FAINT_FRACTION`), ``(Y, X)``
+        bool: :meth:`within_support`, where the views weigh their samples alike (:attr:`even_weights`)."""
+        where = self.within_support(slope)
+        return where if self.even_weights is None else where & self.even_weights
+
     def edge_spread(self, slope):
         """How much the rendering at ``slope`` depends on where its depth edges are: the largest
         :func:`predicted_error` of the :meth:`rendering` against its :meth:`edge_renderings`, ``(Y, X)``

@@ -387,17 +387,15 @@ def _replaced(guide, slope, threshold):
     """The pixels the depth-guided reduction replaces at ``slope``: :func:`replaced_pixels` of the guide's
     cautious scores (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`), their edge spread
     (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`) and where the faint aliasing may be
-    taken (:meth:`~napari_lfalias.depth_guided.DepthGuide.within_support`, where the views weigh their
-    samples alike: :attr:`~napari_lfalias.depth_guided.DepthGuide.even_weights`)."""
+    taken (:meth:`~napari_lfalias.depth_guided.DepthGuide.faint_where`)."""
     from .depth_guided import FAINT_FRACTION
 
     score = guide.cautious_scores(slope)
-    if not (score > np.float32(FAINT_FRACTION * threshold)).any():  # nothing to replace: no spread needed
+    # below the faint floor nothing is replaced: the edge spread (a rendering, where the views agree
+    # everywhere) is not needed
+    if not (score > np.float32(FAINT_FRACTION * threshold)).any():
         return np.zeros(score.shape, bool)
-    faint_where = guide.within_support(slope)
-    if guide.even_weights is not None:
-        faint_where = faint_where & guide.even_weights
-    return replaced_pixels(score, guide.edge_spread(slope), threshold, faint_where)
+    return replaced_pixels(score, guide.edge_spread(slope), threshold, guide.faint_where(slope))
 
 
 def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fraction=None, faint_fraction=None,

@@ -474,6 +474,7 @@ def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offs
     # In a view below or beside the centre, the occluder moves 4 px more than the band and uncovers what lies
     # behind its edge: the band (it goes on behind), not the background to either side of the occluder.
     from napari_lfalias._render_kernels import view_bins
+    from napari_lfalias.render import _nearness
 
     disparity = np.zeros((48, 48), np.float32)
     disparity[10:20, 14:34] = 1.0  # the band: rows 10-14 seen above the occluder, the rest hidden by it
@@ -484,13 +485,50 @@ def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offs
     bins = np.empty((1, 48, 48), np.int16)
     confidence = np.empty((1, 48, 48), np.float32)
     landed = np.empty((1, 48, 48), bool)
-    view_bins(disparity, np.ones(disparity.shape, np.float32), np.array([offset]), True, 0.0, edges, bins, confidence,
-              landed)
+    view_bins(disparity, np.ones(disparity.shape, np.float32), _nearness(disparity, True), np.array([offset]), 0.0,
+              edges, bins, confidence, landed)
     # the occluder's near edge lands 5 px on, the band's 1 px: the 3 px between (inset from the corners) are holes
     hole = (0, slice(17, 19), slice(20, 30)) if offset[0] else (0, slice(20, 30), slice(17, 19))
     assert (bins[hole] == 1).all(), bins[hole]
     assert not landed[hole].any()  # what the centre of the aperture does not see
     assert landed[0, :8].all() and landed[0, 40:].all()  # the background far from the occluder
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("larger_first", [True, False])
+def test_the_warp_shows_the_nearest_sample_landing_on_a_pixel_the_first_of_equals(dtype, larger_first):
+    # The kernel keeps one key per landing spot (nearness and index packed into one integer) and takes the
+    # largest of a pixel's four spots; a z-buffer landing every sample on its four pixels in raster order,
+    # replacing only a strictly nearer one, must show the same sample everywhere something landed. Ties
+    # (steps of 0.5, +0 and -0) decide which of equals is shown.
+    from napari_lfalias._render_kernels import view_bins
+    from napari_lfalias.render import _nearness
+
+    rng = np.random.default_rng(7)
+    shape = (23, 19)
+    disparity = (np.round(rng.uniform(-3, 3, shape) * 2) / 2).astype(dtype)
+    disparity[rng.random(shape) < 0.2] = -0.0
+    disparity[:4, :5] = rng.uniform(-9, 9, (4, 5))  # some land off the view
+    index = np.arange(disparity.size, dtype=np.float32).reshape(shape)  # each sample's confidence: its index
+    for q in [(1.0, 0.5), (-0.7, 1.3), (0.0, -2.0)]:
+        bins = np.empty((1,) + shape, np.int16)
+        shown = np.empty((1,) + shape, np.float32)
+        landed = np.empty((1,) + shape, bool)
+        view_bins(disparity, index, _nearness(disparity, larger_first), np.array([q]), 0.0,
+                  np.array([-np.inf, np.inf]), bins, shown, landed)
+        expected = np.full(shape, -1.0)
+        for (y, x), d in np.ndenumerate(disparity):
+            y0, x0 = int(np.floor(y + d * q[0])), int(np.floor(x + d * q[1]))
+            for yy in (y0, y0 + 1):
+                for xx in (x0, x0 + 1):
+                    if 0 <= yy < shape[0] and 0 <= xx < shape[1]:
+                        there = expected[yy, xx]
+                        if there < 0 or (d > disparity.flat[int(there)] if larger_first
+                                         else d < disparity.flat[int(there)]):
+                            expected[yy, xx] = y * shape[1] + x
+        assert landed[0].any() and (~landed[0]).any()
+        np.testing.assert_array_equal(landed[0], expected >= 0)
+        np.testing.assert_array_equal(shown[0][landed[0]], expected[landed[0]])
 
 
 @pytest.mark.parametrize("wall", ["noise", "checker"])
@@ -552,6 +590,7 @@ def test_layers_compare_only_in_the_same_bins():
 def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     # the kernel guesses each bin from the edges' spacing and corrects the guess against the edges
     from napari_lfalias._render_kernels import view_bins
+    from napari_lfalias.render import _nearness
 
     rng = np.random.default_rng(count)
     inner = np.linspace(-1.3, 2.9, count + 1)
@@ -566,8 +605,8 @@ def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     landed = np.empty((1,) + disparity.shape, bool)
     # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
     # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
-    view_bins(disparity, np.ones(disparity.shape, np.float32), np.zeros((1, 2)), False, 0.0, edges, bins,
-              confidence, landed)
+    view_bins(disparity, np.ones(disparity.shape, np.float32), _nearness(disparity, False), np.zeros((1, 2)), 0.0,
+              edges, bins, confidence, landed)
     expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
     np.testing.assert_array_equal(bins[0, 0], expected)
 

@@ -36,35 +36,30 @@ __all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour
            "sampled_lines", "composite_views", "single_surface", "group_sums"]
 
 
-@njit(cache=True, inline="always")
-def _nearer(a, b, larger_first):
-    return a > b if larger_first else a < b
-
-
 @njit(cache=True)
-def _fill_run(values, confidence, bins, filled, y, x, end, larger_first):
-    """Fill the unfilled run ``[x, end)`` of row ``y`` from the nearer filled neighbour that is farther away in
-    depth (a disocclusion shows the background): that on its left, or on its right where the left one is
-    nearer (or where there is none on the left); a run with no neighbour stays unfilled."""
-    n_cols = values.shape[1]
+def _fill_run(warped, nearness, filled, y, x, end):
+    """Fill the unfilled run ``[x, end)`` of row ``y`` of a warped view (``warped``: the flat index of the
+    sample each pixel shows) from the nearer filled neighbour that is farther away in depth (a
+    disocclusion shows the background; ``nearness``: :func:`_splat_view`'s): that on its left, or on its
+    right where the left one is nearer (or where there is none on the left); a run with no neighbour
+    stays unfilled."""
+    n_cols = warped.shape[1]
     left = x - 1
     right = end if end < n_cols else -1
     if left < 0 and right < 0:
         return
     pick = left
-    if left < 0 or (right >= 0 and _nearer(values[y, left], values[y, right], larger_first)):
+    if left < 0 or (right >= 0 and nearness[warped[y, left]] > nearness[warped[y, right]]):
         pick = right
     for k in range(x, end):
-        values[y, k] = values[y, pick]
-        confidence[y, k] = confidence[y, pick]
-        bins[y, k] = bins[y, pick]
+        warped[y, k] = warped[y, pick]
         filled[y, k] = True
 
 
 @njit(cache=True)
-def _fill_row(values, confidence, bins, filled, y, larger_first):
+def _fill_row(warped, nearness, filled, y):
     """Fill the unfilled runs of row ``y`` (:func:`_fill_run`); a row with nothing filled stays as it is."""
-    n_cols = values.shape[1]
+    n_cols = warped.shape[1]
     x = 0
     while x < n_cols:
         if filled[y, x]:
@@ -73,116 +68,118 @@ def _fill_row(values, confidence, bins, filled, y, larger_first):
         end = x + 1  # the run is [x, end)
         while end < n_cols and not filled[y, end]:
             end += 1
-        _fill_run(values, confidence, bins, filled, y, x, end, larger_first)
+        _fill_run(warped, nearness, filled, y, x, end)
         x = end
 
 
-@njit(cache=True, inline="always")
-def _land(d, c, b, larger_first, out_d, out_c, out_b, filled, y, x):
-    """A sample of disparity ``d`` (confidence ``c``, bin ``b``) lands on ``(y, x)``: it stays unless a
-    nearer one is there."""
-    if not filled[y, x] or _nearer(d, out_d[y, x], larger_first):
-        out_d[y, x] = d
-        out_c[y, x] = c
-        out_b[y, x] = b
-        filled[y, x] = True
-
-
 @njit(cache=True)
-def _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled):
-    """Forward-warp ``disparity``, ``confidence`` and the disparity bins ``source_bins (Y, X)`` into the view at
-    ``(q_y, q_x)`` (``out_d``, ``out_c``, ``out_b``): each sample lands on the four pixels around where it
-    moves, the nearer surface winning; ``filled (Y, X)`` says where something landed (NaN, 0, -1 elsewhere)."""
+def _splat_cells(disparity, nearness, q_y, q_x, cells):
+    """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``, one cell per landing spot: a
+    sample moving to ``t`` lands on the four pixels from ``floor(t)``; cell ``floor(t) + 1`` of ``cells
+    (Y + 1, X + 1)`` keeps the largest key of the samples moving there: their ``nearness`` (flat, uint32)
+    in the high half, their flat index counted down in the low half (of equals, the first in raster
+    order wins); 0: none."""
     n_rows, n_cols = disparity.shape
-    out_d[:] = np.nan
-    out_c[:] = 0.0
-    out_b[:] = -1
-    filled[:] = False
+    cells[:] = 0
+    last = np.uint64(0xFFFFFFFF)
     for y in range(n_rows):
         for x in range(n_cols):
             d = disparity[y, x]
             ty = y + d * q_y
             tx = x + d * q_x
-            if not (-2.0 < ty < n_rows + 1.0 and -2.0 < tx < n_cols + 1.0):
-                continue  # lands outside the view (tested on floats: no integer overflow)
-            y0 = int(np.floor(ty))
-            x0 = int(np.floor(tx))
-            c, b = confidence[y, x], source_bins[y, x]
-            if 0 <= y0 < n_rows - 1 and 0 <= x0 < n_cols - 1:  # all four inside: unrolled (a third faster)
-                _land(d, c, b, larger_first, out_d, out_c, out_b, filled, y0, x0)
-                _land(d, c, b, larger_first, out_d, out_c, out_b, filled, y0, x0 + 1)
-                _land(d, c, b, larger_first, out_d, out_c, out_b, filled, y0 + 1, x0)
-                _land(d, c, b, larger_first, out_d, out_c, out_b, filled, y0 + 1, x0 + 1)
-                continue
-            for yy in range(max(y0, 0), min(y0 + 2, n_rows)):
-                for xx in range(max(x0, 0), min(x0 + 2, n_cols)):
-                    _land(d, c, b, larger_first, out_d, out_c, out_b, filled, yy, xx)
+            if not (-1.0 <= ty < n_rows and -1.0 <= tx < n_cols):
+                continue  # none of its four pixels is in the view (tested on floats: no integer overflow)
+            j = int(np.floor(ty)) + 1
+            k = int(np.floor(tx)) + 1
+            i = y * n_cols + x
+            key = (np.uint64(nearness[i]) << np.uint64(32)) | (last - np.uint64(i))
+            if key > cells[j, k]:
+                cells[j, k] = key
+
+
+@njit(cache=True)
+def _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells):
+    """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)`` gets the flat
+    index of the sample each pixel shows (-1: none), ``filled`` whether it shows one. Each sample lands
+    on the four pixels around where it moves, the nearest (largest ``nearness``: the disparities' order,
+    flat uint32, larger for the nearer surface) winning, of equals the first in raster order. A sample is
+    kept once, in the cell of its landing spot (:func:`_splat_cells`, scratch ``cells (Y + 1, X + 1)``
+    uint64); a pixel then takes the largest key of its four cells: a quarter of the stores of landing on
+    every pixel."""
+    n_rows, n_cols = disparity.shape
+    _splat_cells(disparity, nearness, q_y, q_x, cells)
+    last = np.uint64(0xFFFFFFFF)
+    for y in range(n_rows):
+        for x in range(n_cols):
+            key = max(max(cells[y, x], cells[y, x + 1]), max(cells[y + 1, x], cells[y + 1, x + 1]))
+            filled[y, x] = key != 0
+            warped[y, x] = np.int64(last - (key & last)) if key != 0 else -1
 
 
 @njit(cache=True, inline="always")
 def _first_landed(landed, y, x, step_y, step_x):
-    """The first pixel ``(y + k step_y, x + k step_x)``, k = 1, 2, ..., rounded, that ``landed`` holds, as a
-    flat index (-1: none before the image's edge)."""
+    """The first pixel ``(y + k step_y, x + k step_x)``, k = 1, 2, ..., rounded, that ``landed`` holds, as
+    ``(y, x)`` (-1, -1: none before the image's edge)."""
     n_rows, n_cols = landed.shape
     k = 1
     while True:
         yy = int(np.floor(y + k * step_y + 0.5))
         xx = int(np.floor(x + k * step_x + 0.5))
         if yy < 0 or yy >= n_rows or xx < 0 or xx >= n_cols:
-            return -1
+            return -1, -1
         if landed[yy, xx]:
-            return yy * n_cols + xx
+            return yy, xx
         k += 1
 
 
 @njit(cache=True)
-def _fill_along_offset(values, confidence, bins, filled, landed, q_y, q_x, larger_first):
-    """Fill each unfilled pixel of a warped view from the first pixel something landed in (``landed``, as
-    ``filled`` was before the fill) along the view's offset ``(q_y, q_x)``, either way: the one farther in
-    depth, where both exist. A disocclusion opens along the offset, between the occluder and what lies
-    behind it, and shows the latter (across a horizontal edge of an occluder, for a view above or below the
-    centre, that is the surface above or below the edge, not what lies to either side of the occluder)."""
+def _fill_along_offset(warped, nearness, filled, landed, q_y, q_x):
+    """Fill each unfilled pixel of a warped view (``warped``, ``nearness``: as :func:`_splat_view` makes and
+    reads them) from the first pixel something landed in (``landed``, as ``filled`` was before the fill)
+    along the view's offset ``(q_y, q_x)``, either way: the one farther in depth, where both exist. A
+    disocclusion opens along the offset, between the occluder and what lies behind it, and shows the
+    latter (across a horizontal edge of an occluder, for a view above or below the centre, that is the
+    surface above or below the edge, not what lies to either side of the occluder)."""
     scale = max(abs(q_y), abs(q_x))
     if scale == 0.0:
         return
     step_y, step_x = q_y / scale, q_x / scale
-    flat_d, flat_c, flat_b = values.ravel(), confidence.ravel(), bins.ravel()
-    n_rows, n_cols = values.shape
+    n_rows, n_cols = warped.shape
     for y in range(n_rows):
         for x in range(n_cols):
             if landed[y, x]:
                 continue
-            ahead = _first_landed(landed, y, x, step_y, step_x)
-            behind = _first_landed(landed, y, x, -step_y, -step_x)
-            if ahead < 0 and behind < 0:
+            ahead_y, ahead_x = _first_landed(landed, y, x, step_y, step_x)
+            behind_y, behind_x = _first_landed(landed, y, x, -step_y, -step_x)
+            if ahead_y < 0 and behind_y < 0:
                 continue
-            pick = behind
-            if behind < 0 or (ahead >= 0 and _nearer(flat_d[behind], flat_d[ahead], larger_first)):
-                pick = ahead
-            values[y, x] = flat_d[pick]
-            confidence[y, x] = flat_c[pick]
-            bins[y, x] = flat_b[pick]
+            if behind_y < 0 or (ahead_y >= 0 and nearness[warped[behind_y, behind_x]]
+                                > nearness[warped[ahead_y, ahead_x]]):
+                warped[y, x] = warped[ahead_y, ahead_x]
+            else:
+                warped[y, x] = warped[behind_y, behind_x]
             filled[y, x] = True
 
 
 @njit(cache=True)
-def _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled, landed):
-    """Forward-warp ``disparity``, ``confidence`` and ``source_bins (Y, X)`` into the view at ``(q_y, q_x)``
-    (:func:`_splat_view`), holes filled along the view's offset (:func:`_fill_along_offset`); what that
-    leaves (a walk that leaves the image both ways) is filled along its row, and the rows nothing landed
-    in along the columns; a view nothing lands in stays NaN (bin -1). ``filled (Y, X)`` is scratch;
-    ``landed (Y, X)`` says where something landed (elsewhere the view sees what the centre does not)."""
+def _warp_view(disparity, nearness, q_y, q_x, warped, filled, landed, cells):
+    """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)``, the flat index
+    of the sample each pixel shows (:func:`_splat_view`, with ``nearness`` and scratch ``cells``), holes
+    filled along the view's offset (:func:`_fill_along_offset`); what that leaves (a walk that leaves the
+    image both ways) is filled along its row, and the rows nothing landed in along the columns; a view
+    nothing lands in stays -1. ``filled (Y, X)`` is scratch; ``landed (Y, X)`` says where something
+    landed (elsewhere the view sees what the centre does not)."""
     n_rows = disparity.shape[0]
-    _splat_view(disparity, confidence, source_bins, q_y, q_x, larger_first, out_d, out_c, out_b, filled)
+    _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells)
     landed[:, :] = filled
-    _fill_along_offset(out_d, out_c, out_b, filled, landed, q_y, q_x, larger_first)
+    _fill_along_offset(warped, nearness, filled, landed, q_y, q_x)
     empty = False
     for y in range(n_rows):
-        _fill_row(out_d, out_c, out_b, filled, y, larger_first)
+        _fill_row(warped, nearness, filled, y)
         empty = empty or not filled[y, 0]  # a row is filled whole, or had nothing to fill from
     if empty:
         for x in range(disparity.shape[1]):
-            _fill_row(out_d.T, out_c.T, out_b.T, filled.T, x, larger_first)
+            _fill_row(warped.T, nearness, filled.T, x)
 
 
 @njit(cache=True, inline="always")
@@ -217,32 +214,34 @@ def _source_bins(disparity, edges):
 
 
 @njit(cache=True)
-def _sample_row(warped_bins, warped_confidence, landed, y, sy, columns, out_bins, out_confidence, out_landed):
-    """Row ``y`` of a view's sampled bins, confidence and landed flags: row ``sy`` of the warped ones at
+def _sample_row(warped, landed, source_bins, confidence, y, sy, columns, out_bins, out_confidence, out_landed):
+    """Row ``y`` of a view's sampled bins, confidence and landed flags: those of the samples row ``sy`` of
+    the warped view (``warped``: flat indices into ``source_bins`` and ``confidence``) shows at
     ``columns``."""
-    n_cols = warped_bins.shape[1]
+    n_cols = warped.shape[1]
     out_bins[y] = -1
     out_confidence[y] = 0.0
     out_landed[y] = False
-    if sy < 0 or sy >= warped_bins.shape[0]:
+    if sy < 0 or sy >= warped.shape[0]:
         return
     for x in range(out_bins.shape[1]):
         sx = columns[x]
         if sx < 0 or sx >= n_cols:
             continue
-        b = warped_bins[sy, sx]
-        if b < 0:
+        i = warped[sy, sx]
+        if i < 0:
             continue
-        out_bins[y, x] = b
-        out_confidence[y, x] = warped_confidence[sy, sx]
+        out_bins[y, x] = source_bins[i]
+        out_confidence[y, x] = confidence[i]
         out_landed[y, x] = landed[sy, sx]
 
 
 @njit(cache=True)
-def _shifted_bins_view(warped_bins, warped_confidence, landed, dy, dx, out_bins, out_confidence, out_landed):
-    """The bin ``(Y', X')`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of its
-    warped bins ``warped_bins``; -1 outside the view), its confidence, and whether it landed there."""
-    n_rows, n_cols = warped_bins.shape
+def _shifted_bins_view(warped, landed, source_bins, confidence, dy, dx, out_bins, out_confidence, out_landed):
+    """The bin ``(Y', X')`` of the surface a view's sample at ``p + (dy, dx)`` shows (nearest pixel of the
+    warped view ``warped``, flat indices into ``source_bins`` and ``confidence``; -1 outside the view),
+    its confidence, and whether it landed there."""
+    n_rows, n_cols = warped.shape
     if not (abs(dy) < n_rows + 1.0 and abs(dx) < n_cols + 1.0):  # the view sees none of the image
         out_bins[:] = -1
         out_confidence[:] = 0.0
@@ -252,36 +251,30 @@ def _shifted_bins_view(warped_bins, warped_confidence, landed, dy, dx, out_bins,
     for x in range(out_bins.shape[1]):
         columns[x] = int(np.floor(x + dx + 0.5))
     for y in range(out_bins.shape[0]):
-        _sample_row(warped_bins, warped_confidence, landed, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
+        _sample_row(warped, landed, source_bins, confidence, y, int(np.floor(y + dy + 0.5)), columns, out_bins,
                     out_confidence, out_landed)
 
 
-@njit(cache=True)
-def _warp_scratch(disparity):
-    """A view's warped disparity, confidence and bins, which pixels were filled and where something landed:
-    ``(Y, X)`` each."""
-    n_rows, n_cols = disparity.shape
-    return (np.empty((n_rows, n_cols), disparity.dtype), np.empty((n_rows, n_cols), np.float32),
-            np.empty((n_rows, n_cols), np.int16), np.empty((n_rows, n_cols), np.bool_),
-            np.empty((n_rows, n_cols), np.bool_))
-
-
 @njit(cache=True, parallel=True)
-def view_bins(disparity, confidence, positions, larger_first, slope, edges, out_bins, out_confidence, out_landed):
+def view_bins(disparity, confidence, nearness, positions, slope, edges, out_bins, out_confidence, out_landed):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y', X')`` int16 of the surface its sample at
     ``p + slope * q_i`` shows, that surface's confidence, and whether a pixel of the disparity landed
-    there (else the view sees what the centre of the aperture does not): ``disparity`` and ``confidence (Y, X)``
-    forward-warped into the view (:func:`_warp_view`, in the disparity's float type), then sampled at the
-    shift (:func:`_shifted_bins_view`); views in parallel. The disparity may reach ``e`` px further than
-    the output on every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
-    source_bins = _source_bins(disparity, edges)
-    extra = (disparity.shape[0] - out_bins.shape[1]) // 2
+    there (else the view sees what the centre of the aperture does not): ``disparity (Y, X)``
+    forward-warped into the view (:func:`_warp_view`; ``nearness (Y, X)`` uint32 orders its samples,
+    larger for the nearer surface), then sampled at the shift (:func:`_shifted_bins_view`) with the bin
+    and ``confidence (Y, X)`` of the sample it shows; views in parallel. The disparity may reach ``e`` px
+    further than the output on every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
+    n_rows, n_cols = disparity.shape
+    source_bins = _source_bins(disparity, edges).ravel()
+    flat_confidence, flat_nearness = confidence.ravel(), nearness.ravel()
+    extra = (n_rows - out_bins.shape[1]) // 2
     for i in prange(positions.shape[0]):
-        warped, warped_confidence, warped_bins, filled, landed = _warp_scratch(disparity)
+        warped = np.empty((n_rows, n_cols), np.int64)
+        filled, landed = np.empty((n_rows, n_cols), np.bool_), np.empty((n_rows, n_cols), np.bool_)
+        cells = np.empty((n_rows + 1, n_cols + 1), np.uint64)
         q_y, q_x = positions[i, 0], positions[i, 1]
-        _warp_view(disparity, confidence, source_bins, q_y, q_x, larger_first, warped, warped_confidence, warped_bins,
-                   filled, landed)
-        _shifted_bins_view(warped_bins, warped_confidence, landed, slope * q_y + extra, slope * q_x + extra,
+        _warp_view(disparity, flat_nearness, q_y, q_x, warped, filled, landed, cells)
+        _shifted_bins_view(warped, landed, source_bins, flat_confidence, slope * q_y + extra, slope * q_x + extra,
                            out_bins[i], out_confidence[i], out_landed[i])
 
 

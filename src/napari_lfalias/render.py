@@ -475,8 +475,8 @@ class SlopeRenderer:
         sample_conf = np.empty((n,) + shape, np.float32)
         landed = np.empty((n,) + shape, bool)
         warped = _beyond(narrow if exact else disparity, pad, extra)
-        _run("view_bins", warped, _beyond(confidence, pad, extra), self.positions, bool(larger_first), slope, edges,
-             bins, sample_conf, landed)
+        _run("view_bins", warped, _beyond(confidence, pad, extra), _nearness(warped, larger_first), self.positions,
+             slope, edges, bins, sample_conf, landed)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)
@@ -613,6 +613,19 @@ def _beyond(image, pad, extra):
     an estimate are its least sure), then continued (a mirror reaching further would bring surfaces from
     inside the image out to where they are not)."""
     return np.pad(np.pad(image, pad, mode="reflect"), extra, mode="edge")
+
+
+def _nearness(disparity, larger_first):
+    """How near each pixel of ``disparity`` is, ``(Y, X)`` uint32 ordered as the disparities are (larger:
+    nearer; equal where they are equal): the float32 bits made monotonic (-0 taken as 0), or the rank
+    among the distinct float64 values. What the forward warp compares, packed with a sample's index into
+    one integer (:func:`napari_lfalias._render_kernels.view_bins`)."""
+    if disparity.dtype == np.float32:
+        bits = (disparity + np.float32(0)).view(np.uint32)  # -0 + 0 is +0
+        order = np.where(bits & np.uint32(0x80000000), ~bits, bits | np.uint32(0x80000000))
+    else:
+        order = np.unique(disparity, return_inverse=True)[1].reshape(disparity.shape).astype(np.uint32) + 1
+    return np.ascontiguousarray(order if larger_first else ~order, np.uint32)
 
 
 def _reach(taps):

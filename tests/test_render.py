@@ -486,7 +486,7 @@ def test_a_disocclusion_shows_what_lies_behind_the_occluder_along_the_views_offs
     confidence = np.empty((1, 48, 48), np.float32)
     landed = np.empty((1, 48, 48), bool)
     view_bins(disparity, np.ones(disparity.shape, np.float32), _nearness(disparity, True), np.array([offset]), 0.0,
-              edges, bins, confidence, landed)
+              edges, 1, bins, confidence, landed)
     # the occluder's near edge lands 5 px on, the band's 1 px: the 3 px between (inset from the corners) are holes
     hole = (0, slice(17, 19), slice(20, 30)) if offset[0] else (0, slice(20, 30), slice(17, 19))
     assert (bins[hole] == 1).all(), bins[hole]
@@ -515,7 +515,7 @@ def test_the_warp_shows_the_nearest_sample_landing_on_a_pixel_the_first_of_equal
         shown = np.empty((1,) + shape, np.float32)
         landed = np.empty((1,) + shape, bool)
         view_bins(disparity, index, _nearness(disparity, larger_first), np.array([q]), 0.0,
-                  np.array([-np.inf, np.inf]), bins, shown, landed)
+                  np.array([-np.inf, np.inf]), 1, bins, shown, landed)
         expected = np.full(shape, -1.0)
         for (y, x), d in np.ndenumerate(disparity):
             y0, x0 = int(np.floor(y + d * q[0])), int(np.floor(x + d * q[1]))
@@ -606,7 +606,7 @@ def test_the_views_bins_are_the_sorted_search_of_the_bin_edges(count, dtype):
     # one view at the centre of the aperture, smaller disparities in front: each pixel splats onto itself and
     # its right neighbour, whose own disparity is the smaller, so every pixel shows its own
     view_bins(disparity, np.ones(disparity.shape, np.float32), _nearness(disparity, False), np.zeros((1, 2)), 0.0,
-              edges, bins, confidence, landed)
+              edges, 1, bins, confidence, landed)
     expected = np.clip(np.searchsorted(edges, values.astype(np.float64), side="right") - 1, 0, count - 1)
     np.testing.assert_array_equal(bins[0, 0], expected)
 

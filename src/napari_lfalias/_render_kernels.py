@@ -99,7 +99,7 @@ def _splat_cells(disparity, nearness, q_y, q_x, cells):
 
 @njit(cache=True)
 def _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells):
-    """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)`` gets the flat
+    """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)`` int32 gets the flat
     index of the sample each pixel shows (-1: none), ``filled`` whether it shows one. Each sample lands
     on the four pixels around where it moves, the nearest (largest ``nearness``: the disparities' order,
     flat uint32, larger for the nearer surface) winning, of equals the first in raster order. A sample is
@@ -113,7 +113,7 @@ def _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells):
         for x in range(n_cols):
             key = max(max(cells[y, x], cells[y, x + 1]), max(cells[y + 1, x], cells[y + 1, x + 1]))
             filled[y, x] = key != 0
-            warped[y, x] = np.int64(last - (key & last)) if key != 0 else -1
+            warped[y, x] = np.int32(last - (key & last)) if key != 0 else -1
 
 
 @njit(cache=True, inline="always")
@@ -256,26 +256,30 @@ def _shifted_bins_view(warped, landed, source_bins, confidence, dy, dx, out_bins
 
 
 @njit(cache=True, parallel=True)
-def view_bins(disparity, confidence, nearness, positions, slope, edges, out_bins, out_confidence, out_landed):
+def view_bins(disparity, confidence, nearness, positions, slope, edges, n_chunks, out_bins, out_confidence,
+              out_landed):
     """For every view at ``positions (n, 2)``, the bin ``(n, Y', X')`` int16 of the surface its sample at
     ``p + slope * q_i`` shows, that surface's confidence, and whether a pixel of the disparity landed
     there (else the view sees what the centre of the aperture does not): ``disparity (Y, X)``
     forward-warped into the view (:func:`_warp_view`; ``nearness (Y, X)`` uint32 orders its samples,
     larger for the nearer surface), then sampled at the shift (:func:`_shifted_bins_view`) with the bin
-    and ``confidence (Y, X)`` of the sample it shows; views in parallel. The disparity may reach ``e`` px
-    further than the output on every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
+    and ``confidence (Y, X)`` of the sample it shows; the views in ``n_chunks`` parallel chunks (one per
+    thread: each makes its scratch once). The disparity may reach ``e`` px further than the output on
+    every side (``Y = Y' + 2 e``): output pixel ``p`` is its pixel ``p + e``."""
     n_rows, n_cols = disparity.shape
     source_bins = _source_bins(disparity, edges).ravel()
     flat_confidence, flat_nearness = confidence.ravel(), nearness.ravel()
     extra = (n_rows - out_bins.shape[1]) // 2
-    for i in prange(positions.shape[0]):
-        warped = np.empty((n_rows, n_cols), np.int64)
+    n = positions.shape[0]
+    for chunk in prange(n_chunks):  # a thread's scratch made once, not per view: fresh pages cost as much
+        warped = np.empty((n_rows, n_cols), np.int32)
         filled, landed = np.empty((n_rows, n_cols), np.bool_), np.empty((n_rows, n_cols), np.bool_)
         cells = np.empty((n_rows + 1, n_cols + 1), np.uint64)
-        q_y, q_x = positions[i, 0], positions[i, 1]
-        _warp_view(disparity, flat_nearness, q_y, q_x, warped, filled, landed, cells)
-        _shifted_bins_view(warped, landed, source_bins, flat_confidence, slope * q_y + extra, slope * q_x + extra,
-                           out_bins[i], out_confidence[i], out_landed[i])
+        for i in range(chunk, n, n_chunks):
+            q_y, q_x = positions[i, 0], positions[i, 1]
+            _warp_view(disparity, flat_nearness, q_y, q_x, warped, filled, landed, cells)
+            _shifted_bins_view(warped, landed, source_bins, flat_confidence, slope * q_y + extra,
+                               slope * q_x + extra, out_bins[i], out_confidence[i], out_landed[i])
 
 
 @njit(cache=True, inline="always")

@@ -73,6 +73,7 @@ import importlib
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy import ndimage
 
@@ -476,7 +477,7 @@ class SlopeRenderer:
         landed = np.empty((n,) + shape, bool)
         warped = _beyond(narrow if exact else disparity, pad, extra)
         _run("view_bins", warped, _beyond(confidence, pad, extra), _nearness(warped, larger_first), self.positions,
-             slope, edges, bins, sample_conf, landed)
+             slope, edges, min(n, numba.get_num_threads()), bins, sample_conf, landed)
         near = bins_of is not None and bins_of.larger_first == bool(larger_first)
         order = np.argsort(-centres if larger_first else centres, kind="stable").astype(np.int64)
         occluders = _occluders(centres[order], OCCLUSION_GAP_PX / spacing)

@@ -37,9 +37,9 @@ __all__ = ["view_bins", "disoccluded_in_focus", "views_differ", "in_focus_colour
 
 
 @njit(cache=True)
-def _fill_run(warped, nearness, filled, y, x, end):
+def _fill_run(warped, nearness, y, x, end):
     """Fill the unfilled run ``[x, end)`` of row ``y`` of a warped view (``warped``: the flat index of the
-    sample each pixel shows) from the nearer filled neighbour that is farther away in depth (a
+    sample each pixel shows, -1: none yet) from the nearer filled neighbour that is farther away in depth (a
     disocclusion shows the background; ``nearness``: :func:`_splat_view`'s): that on its left, or on its
     right where the left one is nearer (or where there is none on the left); a run with no neighbour
     stays unfilled."""
@@ -53,22 +53,21 @@ def _fill_run(warped, nearness, filled, y, x, end):
         pick = right
     for k in range(x, end):
         warped[y, k] = warped[y, pick]
-        filled[y, k] = True
 
 
 @njit(cache=True)
-def _fill_row(warped, nearness, filled, y):
+def _fill_row(warped, nearness, y):
     """Fill the unfilled runs of row ``y`` (:func:`_fill_run`); a row with nothing filled stays as it is."""
     n_cols = warped.shape[1]
     x = 0
     while x < n_cols:
-        if filled[y, x]:
+        if warped[y, x] >= 0:
             x += 1
             continue
         end = x + 1  # the run is [x, end)
-        while end < n_cols and not filled[y, end]:
+        while end < n_cols and warped[y, end] < 0:
             end += 1
-        _fill_run(warped, nearness, filled, y, x, end)
+        _fill_run(warped, nearness, y, x, end)
         x = end
 
 
@@ -98,9 +97,9 @@ def _splat_cells(disparity, nearness, q_y, q_x, cells):
 
 
 @njit(cache=True)
-def _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells):
+def _splat_view(disparity, nearness, q_y, q_x, warped, cells):
     """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)`` int32 gets the flat
-    index of the sample each pixel shows (-1: none), ``filled`` whether it shows one. Each sample lands
+    index of the sample each pixel shows (-1: none). Each sample lands
     on the four pixels around where it moves, the nearest (largest ``nearness``: the disparities' order,
     flat uint32, larger for the nearer surface) winning, of equals the first in raster order. A sample is
     kept once, in the cell of its landing spot (:func:`_splat_cells`, scratch ``cells (Y + 1, X + 1)``
@@ -112,7 +111,6 @@ def _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells):
     for y in range(n_rows):
         for x in range(n_cols):
             key = max(max(cells[y, x], cells[y, x + 1]), max(cells[y + 1, x], cells[y + 1, x + 1]))
-            filled[y, x] = key != 0
             warped[y, x] = np.int32(last - (key & last)) if key != 0 else -1
 
 
@@ -133,9 +131,10 @@ def _first_landed(landed, y, x, step_y, step_x):
 
 
 @njit(cache=True)
-def _fill_along_offset(warped, nearness, filled, landed, q_y, q_x):
+def _fill_along_offset(warped, nearness, landed, q_y, q_x):
     """Fill each unfilled pixel of a warped view (``warped``, ``nearness``: as :func:`_splat_view` makes and
-    reads them) from the first pixel something landed in (``landed``, as ``filled`` was before the fill)
+    reads them) from the first pixel something landed in (``landed``: where ``warped`` held a sample before
+    the fill)
     along the view's offset ``(q_y, q_x)``, either way: the one farther in depth, where both exist. A
     disocclusion opens along the offset, between the occluder and what lies behind it, and shows the
     latter (across a horizontal edge of an occluder, for a view above or below the centre, that is the
@@ -158,28 +157,29 @@ def _fill_along_offset(warped, nearness, filled, landed, q_y, q_x):
                 warped[y, x] = warped[ahead_y, ahead_x]
             else:
                 warped[y, x] = warped[behind_y, behind_x]
-            filled[y, x] = True
 
 
 @njit(cache=True)
-def _warp_view(disparity, nearness, q_y, q_x, warped, filled, landed, cells):
+def _warp_view(disparity, nearness, q_y, q_x, warped, landed, cells):
     """Forward-warp ``disparity (Y, X)`` into the view at ``(q_y, q_x)``: ``warped (Y, X)``, the flat index
     of the sample each pixel shows (:func:`_splat_view`, with ``nearness`` and scratch ``cells``), holes
     filled along the view's offset (:func:`_fill_along_offset`); what that leaves (a walk that leaves the
     image both ways) is filled along its row, and the rows nothing landed in along the columns; a view
-    nothing lands in stays -1. ``filled (Y, X)`` is scratch; ``landed (Y, X)`` says where something
-    landed (elsewhere the view sees what the centre does not)."""
-    n_rows = disparity.shape[0]
-    _splat_view(disparity, nearness, q_y, q_x, warped, filled, cells)
-    landed[:, :] = filled
-    _fill_along_offset(warped, nearness, filled, landed, q_y, q_x)
+    nothing lands in stays -1. ``landed (Y, X)`` says where something landed (elsewhere the view sees
+    what the centre does not)."""
+    n_rows, n_cols = disparity.shape
+    _splat_view(disparity, nearness, q_y, q_x, warped, cells)
+    for y in range(n_rows):
+        for x in range(n_cols):
+            landed[y, x] = warped[y, x] >= 0
+    _fill_along_offset(warped, nearness, landed, q_y, q_x)
     empty = False
     for y in range(n_rows):
-        _fill_row(warped, nearness, filled, y)
-        empty = empty or not filled[y, 0]  # a row is filled whole, or had nothing to fill from
+        _fill_row(warped, nearness, y)
+        empty = empty or warped[y, 0] < 0  # a row is filled whole, or had nothing to fill from
     if empty:
-        for x in range(disparity.shape[1]):
-            _fill_row(warped.T, nearness, filled.T, x)
+        for x in range(n_cols):
+            _fill_row(warped.T, nearness, x)
 
 
 @njit(cache=True, inline="always")
@@ -273,11 +273,11 @@ def view_bins(disparity, confidence, nearness, positions, slope, edges, n_chunks
     n = positions.shape[0]
     for chunk in prange(n_chunks):  # a thread's scratch made once, not per view: fresh pages cost as much
         warped = np.empty((n_rows, n_cols), np.int32)
-        filled, landed = np.empty((n_rows, n_cols), np.bool_), np.empty((n_rows, n_cols), np.bool_)
+        landed = np.empty((n_rows, n_cols), np.bool_)
         cells = np.empty((n_rows + 1, n_cols + 1), np.uint64)
         for i in range(chunk, n, n_chunks):
             q_y, q_x = positions[i, 0], positions[i, 1]
-            _warp_view(disparity, flat_nearness, q_y, q_x, warped, filled, landed, cells)
+            _warp_view(disparity, flat_nearness, q_y, q_x, warped, landed, cells)
             _shifted_bins_view(warped, landed, source_bins, flat_confidence, slope * q_y + extra,
                                slope * q_x + extra, out_bins[i], out_confidence[i], out_landed[i])
 

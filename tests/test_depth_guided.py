@@ -19,7 +19,7 @@ from napari_lfalias.reduce import reduction_options
 from napari_lfalias import render as render_module
 from napari_lfalias.render import SlopeRenderer
 from napari_lfalias.synthetic import brick_room, layered_scene, textured_plane, textureless_plane
-from napari_lfalias.synthetic.camera import capture
+from napari_lfalias.synthetic.camera import capture, reference_through
 
 from _accuracy_scenes import as_user_has_it
 
@@ -464,14 +464,15 @@ def test_a_periodic_wall_without_a_second_fit_everywhere_takes_its_neighbours_pe
     refocus at 2.9. The period of its neighbours finds the views' fit near 3.8 there too."""
     layers = [(1.3, "noise", (0.065, 0.413, 0.399, 0.754)), (3.8, "checker", None)]
     scene = layered_scene(layers, n_views=4, size=256, seed=1206)
-    lf = as_user_has_it(capture(scene.lightfield, vignetting=0.837, calibrated=True, seed=1206))
+    camera = {"vignetting": 0.837, "calibrated": True, "seed": 1206}
+    lf = as_user_has_it(capture(scene.lightfield, **camera))
     estimate = lfa.estimate_disparity(lf)
     wall = scene.disparity == np.float32(3.8)
     assert np.median(np.abs(estimate.disparity[wall] - 3.8)) > 5
     assert np.mean(np.isfinite(estimate.alternative[wall])) < 0.9
     slope = 2.9
     image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
-    assert _gain(image, lfa.refocus(lf, slope), scene.reference(slope)) > -0.1
+    assert _gain(image, lfa.refocus(lf, slope), reference_through(scene, slope, **camera)) > -0.1
 
 
 def test_an_estimate_with_an_alternative_of_another_shape_is_refused_by_name():
@@ -731,8 +732,8 @@ def test_a_smooth_background_s_noisy_estimate_does_not_flip_the_occlusion_order(
     stripes' 0.79): the sure pixels judge it."""
     layers = [(4.3, "stripes", (0.392, 0.854, 0.374, 0.624)), (-4.4, "smooth", None)]
     scene = layered_scene(layers, n_views=5, size=256, seed=1315)
-    lf = as_user_has_it(capture(scene.lightfield, read_noise=0.00109, shot_noise=0.00755, vignetting=0.621,
-                                calibrated=True, seed=1315))
+    camera = {"read_noise": 0.00109, "shot_noise": 0.00755, "vignetting": 0.621, "calibrated": True, "seed": 1315}
+    lf = as_user_has_it(capture(scene.lightfield, **camera))
     estimate = lfa.estimate_disparity(lf)
     slope = 4.3
     guide = DepthGuide(lf, estimate)
@@ -741,7 +742,7 @@ def test_a_smooth_background_s_noisy_estimate_does_not_flip_the_occlusion_order(
     assert not _larger_is_nearer(views, positions, judged)  # the trap: every pixel counted
     assert guide.larger_first(slope)
     image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
-    assert _gain(image, lfa.refocus(lf, slope), scene.reference(slope)) > -0.1
+    assert _gain(image, lfa.refocus(lf, slope), reference_through(scene, slope, **camera)) > -0.1
 
 
 def test_the_occlusion_order_is_the_light_field_s_not_the_focus_s():
@@ -754,7 +755,8 @@ def test_the_occlusion_order_is_the_light_field_s_not_the_focus_s():
     layers = [(4.6, "lines", (0.483, 0.855, 0.321, 0.778)), (-0.8, "grey", (0.339, 0.631, 0.376, 0.761)),
               (-4.9, "smooth", None)]
     scene = layered_scene(layers, n_views=8, size=256, seed=1418)
-    lf = as_user_has_it(capture(scene.lightfield, vignetting=0.711, calibrated=True, seed=1418))
+    camera = {"vignetting": 0.711, "calibrated": True, "seed": 1418}
+    lf = as_user_has_it(capture(scene.lightfield, **camera))
     estimate = lfa.estimate_disparity(lf)
     guide = DepthGuide(lf, estimate)
     slope = 5.0
@@ -762,7 +764,7 @@ def test_the_occlusion_order_is_the_light_field_s_not_the_focus_s():
     views, positions = np.ascontiguousarray(lf.views()), lf.flat_positions()
     assert not _larger_is_nearer(views, positions, judged_at_slope, guide._confidence_at(slope))  # the trap
     assert all(guide.larger_first(s) for s in (slope, 4.6, -0.8, -4.9))
-    naive, reference = lfa.refocus(lf, slope), scene.reference(slope)
+    naive, reference = lfa.refocus(lf, slope), reference_through(scene, slope, **camera)
     image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
     clean = ~metrics.aliased_pixels(naive, reference)
     assert _gain(image, naive, reference, clean) > -0.1
@@ -794,7 +796,7 @@ def test_an_order_judged_at_the_slope_moves_a_periodic_wall_by_its_periods(seed,
     assert trap != larger  # the estimate a period off outside what the views show in focus
     assert guide.larger_first(slope) == larger
     naive = lfa.refocus(lf, slope)
-    reference = np.minimum(scene.reference(slope) * np.float32(camera.get("exposure", 1.0)), np.float32(1))
+    reference = reference_through(scene, slope, **camera)
     image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
     assert _gain(image, naive, reference) > before + 1.0
 

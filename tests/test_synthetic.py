@@ -224,3 +224,40 @@ def test_aperture_refocus_rejects_bad_input(small_room):
         small_room.aperture_refocus(0.0, q, q, -np.ones((3, 3)))
     with pytest.raises(ParameterError, match="reach outside the scene"):
         small_room.aperture_refocus(0.0, q, q, np.ones((3, 3)), origin=(40.0, 0.0), shape=(30, 30))
+
+
+# -- the reference through a vignetted camera ---------------------------------------------------------
+
+@pytest.mark.parametrize("slope", [0.0, -2.0, 3.0])
+def test_the_vignetted_reference_weighs_every_ray_where_it_lands(slope):
+    """Against brute force: every aperture sample's exact view, weighed by the fall-off at its aperture
+    position and at the pixel where it lands (measured: within 4e-8 inside the border; at the border the brute
+    force takes a landing beyond the last pixel as invalid, the reference as its bilinear share)."""
+    from napari_lfalias import regular_positions
+    from napari_lfalias.synthetic import layered_scene
+    from napari_lfalias.synthetic.camera import vignetted_reference
+
+    size, n, strength, m = 40, 3, 0.8, 2
+    scene = layered_scene([(3.0, "stripes", (0.2, 0.7, 0.3, 0.8)), (-2.0, "bricks", None)], n_views=n, size=size,
+                          seed=3)
+    aperture = scene.aperture_positions(m)
+    q_max2 = float(np.max(np.sum(regular_positions(n, n) ** 2, axis=-1)))
+    pixels = np.arange(size)
+    num, den = np.zeros((size, size, 3)), np.zeros((size, size))
+    for a, q_y in enumerate(aperture):
+        for b, q_x in enumerate(aperture):
+            one = np.zeros((aperture.size, aperture.size))
+            one[a, b] = 1.0
+            view = scene.aperture_refocus(slope, aperture, aperture, one)
+            land_y, land_x = pixels + slope * q_y, pixels + slope * q_x
+            valid = ((land_y >= 0) & (land_y <= size - 1))[:, None] & ((land_x >= 0) & (land_x <= size - 1))[None]
+            rho_p2 = ((((land_y - (size - 1) / 2) / (size / 2)) ** 2)[:, None]
+                      + (((land_x - (size - 1) / 2) / (size / 2)) ** 2)[None]) / 2
+            weight = valid / (1 + strength * ((q_y ** 2 + q_x ** 2) / q_max2 + rho_p2)) ** 2
+            num += weight[..., None] * view
+            den += weight
+    brute = num / den[..., None]
+    reference = vignetted_reference(scene, slope, strength, samples_per_view=m)
+    inner = (slice(6, -6), slice(6, -6))
+    np.testing.assert_allclose(reference[inner], brute[inner], rtol=0, atol=1e-6)
+    assert np.abs(scene.reference(slope, m) - brute)[inner].max() > 1e-3  # the uniform aperture is not it

@@ -20,6 +20,15 @@ With ``calibrated=True`` the vignetting is divided out again and returned
 as the light field's sample weights, which is what a decoder with a white
 image hands the user; without it the user gets the darkened views and no
 weights (a folder of images), and the loader has to cope.
+
+The vignette takes light from the rays themselves, so a camera with a dense
+aperture and the same vignetting records them weighted by it too: the sum
+over the aperture of the fall-off times the ray, which a flat field
+divides by the fall-off's own sum. :func:`vignetted_reference` is that
+dense-aperture image of a synthetic scene, the ground truth of a
+calibrated capture (its naive refocus weighs each view's samples by their
+fall-off alike); the scene's uniform
+:meth:`~napari_lfalias.synthetic.SyntheticScene.reference` is not.
 """
 
 from __future__ import annotations
@@ -28,9 +37,14 @@ import numpy as np
 
 from .. import _validate
 from ..errors import ParameterError
-from ..lightfield import LightField
+from ..lightfield import LightField, regular_positions
 
-__all__ = ["capture", "vignetting_falloff"]
+__all__ = ["capture", "vignetting_falloff", "vignetted_reference", "reference_through"]
+
+#: Exponentials whose sum stands for the fall-off ``(1 + z)^-2`` in :func:`vignetted_reference` (each one
+#: separable over the two axes), and the largest relative error of that sum it accepts.
+FALLOFF_TERMS = 10
+FALLOFF_TOLERANCE = 1e-4
 
 
 def vignetting_falloff(positions, shape, strength):
@@ -53,6 +67,139 @@ def vignetting_falloff(positions, shape, strength):
     rho_p2 = (y[:, None] ** 2 + x[None, :] ** 2) / 2
     total = rho_q[..., None, None] ** 2 + rho_p2[None, None]
     return (1.0 / (1.0 + strength * total) ** 2).astype(np.float32)
+
+
+def _falloff_as_exponentials(z_max):
+    """Coefficients ``c`` and rates ``r`` with ``sum(c * exp(-r * z))`` within :data:`FALLOFF_TOLERANCE` of
+    ``(1 + z)^-2`` (relative) for ``0 <= z <= z_max``: a least-squares fit on geometric rates."""
+    z = np.linspace(0.0, max(float(z_max), 1e-6), 2001)
+    exact = (1.0 + z) ** -2.0
+    rates = np.geomspace(0.02, 8.0, FALLOFF_TERMS) * (5.0 / max(float(z_max), 5.0))
+    basis = np.exp(-np.outer(z, rates))
+    coefficients = np.linalg.lstsq(basis / exact[:, None], np.ones_like(z), rcond=None)[0]
+    error = float(np.abs(basis @ coefficients / exact - 1.0).max())
+    if error > FALLOFF_TOLERANCE:
+        raise ParameterError(f"the vignetting fall-off over 0 to {z_max:.3g} needs more than {FALLOFF_TERMS} "
+                             f"exponentials (relative error {error:.2g}); lower the vignetting")
+    return coefficients, rates
+
+
+def vignetted_reference(scene, slope, vignetting, *, samples_per_view=None, max_step=0.25):
+    """The dense-aperture image of ``scene`` at ``slope`` through a camera with ``vignetting`` (module notes).
+
+    Every ray ``(q, p + slope q)`` of the aperture (``samples_per_view``
+    per view cell and axis, as in the scene's
+    :meth:`~napari_lfalias.synthetic.SyntheticScene.reference`) is weighed
+    by :func:`vignetting_falloff` at its aperture position and at the pixel
+    where it lands in its view, and the sum is divided by the sum of the
+    weights: what a flat-fielded camera of that aperture records, and what
+    the naive refocus of :func:`capture` ``(..., calibrated=True)``
+    samples at one ray per view.
+
+    Parameters
+    ----------
+    scene : SyntheticScene
+        The scene (square views of ``scene.size`` px on a regular grid).
+    slope : float
+        Disparity in focus.
+    vignetting : float
+        The strength given to :func:`capture` (0: the uniform reference).
+    samples_per_view : int, optional
+        Aperture samples per view cell and axis (1: the views themselves);
+        default ``scene.aperture_samples(slope, max_step)``.
+    max_step : float
+        See :meth:`~napari_lfalias.synthetic.SyntheticScene.aperture_samples`.
+
+    Returns
+    -------
+    image : ndarray, shape (size, size, 3), float32
+
+    Notes
+    -----
+    The fall-off ``(1 + k (rho_q^2 + rho_p^2))^-2`` is not separable over
+    the image's axes; it is summed from :data:`FALLOFF_TERMS` exponentials
+    of ``k (rho_q^2 + rho_p^2)``, each of which is (relative error at most
+    :data:`FALLOFF_TOLERANCE`), and the scene's own separable sums do the
+    rest (:meth:`~napari_lfalias.synthetic.SyntheticScene.reference` with
+    ``pixel_terms``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias.synthetic import textured_plane
+    >>> scene = textured_plane(n_views=3, size=32, disparity=1.0)
+    >>> uniform = vignetted_reference(scene, 0.0, 0.0)
+    >>> bool(np.allclose(uniform, scene.reference(0.0), atol=1e-5))
+    True
+    """
+    slope = _validate.finite_float("slope", slope)
+    vignetting = _validate.non_negative_float("vignetting", vignetting)
+    m = scene.aperture_samples(slope, max_step) if samples_per_view is None else \
+        _validate.integer_at_least("samples_per_view", samples_per_view, 1)
+    aperture = scene.aperture_positions(m)
+    positions = regular_positions(scene.n_views, scene.n_views)
+    q_max2 = max(float(np.max(positions[..., 0] ** 2 + positions[..., 1] ** 2)), 1e-18)
+    size = scene.size
+    landing = (np.arange(size)[None, :] + slope * aperture[:, None] - (size - 1) / 2) / max(size / 2, 1)
+    # the fall-off's argument on one axis, for every aperture position and output pixel (M, size)
+    axis_part = aperture[:, None] ** 2 / q_max2 + landing ** 2 / 2
+    z_max = vignetting * 2 * float(axis_part.max())
+    if z_max == 0:
+        return scene.reference(slope, m)
+    coefficients, rates = _falloff_as_exponentials(z_max)
+    terms = []
+    for c, r in zip(coefficients, rates):
+        axis_weight = np.exp(-r * vignetting * axis_part)  # the same on both axes: square views, square grid
+        terms.append((float(c), axis_weight, axis_weight))
+    return scene.reference(slope, m, pixel_terms=terms)
+
+
+def reference_through(scene, slope, *, vignetting=0.0, exposure=1.0, calibrated=False, samples_per_view=None,
+                      **sensor):
+    """The dense-aperture image of ``scene`` at ``slope`` through the camera of :func:`capture` with these
+    options: the ground truth of what :func:`capture` hands the user.
+
+    Calibrated vignetting weighs the rays (:func:`vignetted_reference`); the
+    exposure scales the image and clips it at 1. The sensor's own options
+    (``bayer``, ``read_noise``, ``shot_noise``, ``seed``, in ``sensor``)
+    change the views, not what the aperture gathers, and uncalibrated
+    vignetting is an artefact of the views that a loader has to correct:
+    neither is in the reference.
+
+    Parameters
+    ----------
+    scene : SyntheticScene
+        The scene.
+    slope : float
+        Disparity in focus.
+    vignetting, exposure, calibrated, **sensor
+        As given to :func:`capture`.
+    samples_per_view : int, optional
+        Aperture samples per view cell and axis (1: the views' comb).
+
+    Returns
+    -------
+    image : ndarray, shape (size, size, 3), float32
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias.synthetic import textured_plane
+    >>> scene = textured_plane(n_views=3, size=32, disparity=1.0)
+    >>> image = reference_through(scene, 0.0, exposure=2.0, read_noise=0.01)
+    >>> bool(np.array_equal(image, np.minimum(2 * scene.reference(0.0), np.float32(1))))
+    True
+    """
+    unknown = set(sensor) - {"bayer", "read_noise", "shot_noise", "seed"}
+    if unknown:
+        raise ParameterError(f"unknown camera options: {', '.join(sorted(unknown))}")
+    exposure = np.float32(_validate.positive_float("exposure", exposure))
+    strength = _validate.non_negative_float("vignetting", vignetting) if calibrated else 0.0
+    if strength:
+        image = vignetted_reference(scene, slope, strength, samples_per_view=samples_per_view)
+    else:
+        image = scene.reference(slope, samples_per_view, interpolation="exact")
+    return image if exposure == 1 else np.minimum(image * exposure, np.float32(1.0))
 
 
 def capture(lf, *, vignetting=0.0, exposure=1.0, bayer=False, read_noise=0.0, shot_noise=0.0, calibrated=False,

@@ -442,7 +442,7 @@ class SyntheticScene:
         spread = max(abs(layer.disparity - slope) for layer in self.layers)
         return max(1, math.ceil(spread / max_step))
 
-    def reference(self, slope, samples_per_view=None, interpolation="exact", max_step=0.25):
+    def reference(self, slope, samples_per_view=None, interpolation="exact", max_step=0.25, pixel_terms=None):
         """Refocus over the dense, continuous aperture: the alias-free ground truth.
 
         Parameters
@@ -459,6 +459,14 @@ class SyntheticScene:
         max_step : float
             Largest motion (px) of any layer between adjacent aperture
             samples when ``samples_per_view`` is not given.
+        pixel_terms : sequence of (float, ndarray, ndarray), optional
+            Weigh every ray by a sum of separable terms ``(c, w_y, w_x)``:
+            the ray of aperture position ``(a_y[m], a_x[l])`` into output
+            pixel ``(y, x)`` by ``sum(c * w_y[m, y] * w_x[l, x])``, with
+            ``a_y = a_x`` the :meth:`aperture_positions` (arrays ``(M, size)``).
+            A camera's vignetting, which depends on where a ray lands
+            (:func:`~napari_lfalias.synthetic.camera.vignetted_reference`).
+            Only with ``interpolation="exact"``. Default: every ray alike.
 
         Returns
         -------
@@ -469,16 +477,29 @@ class SyntheticScene:
         _validate.one_of("interpolation", interpolation, ("exact", "bilinear"))
         if samples_per_view is None:
             samples_per_view = self.aperture_samples(slope, max_step)
-        m = _validate.integer_at_least("samples_per_view", samples_per_view, 1)
-        centres = regular_positions(self.n_views, 1)[:, 0, 0]
-        positions = (centres[:, None] + (np.arange(m) + 0.5) / m - 0.5).ravel()
-        y_sum, y_weight = self._aperture_sum("y", positions, slope, interpolation)
-        x_sum, x_weight = self._aperture_sum("x", positions, slope, interpolation)
-        num = self._view_from_factors(y_sum, x_sum, np.float64)
-        den = np.outer(y_weight, x_weight)[..., None]
+        positions = self.aperture_positions(samples_per_view)
+        if pixel_terms is None:
+            coefficients, y_weights, x_weights = [1.0], [None], [None]
+        elif interpolation != "exact":
+            raise ParameterError('pixel_terms needs interpolation="exact"')
+        else:
+            coefficients, y_weights, x_weights = zip(*pixel_terms)
+        num, den = 0.0, 0.0
+        for c, (y_sum, y_weight), (x_sum, x_weight) in zip(
+                coefficients, self._aperture_sum("y", positions, slope, interpolation, y_weights),
+                self._aperture_sum("x", positions, slope, interpolation, x_weights)):
+            num = num + c * self._view_from_factors(y_sum, x_sum, np.float64)
+            den = den + c * np.outer(y_weight, x_weight)[..., None]
         out = np.zeros_like(num)
         np.divide(num, den, out=out, where=den > 0)
         return out.astype(np.float32)
+
+    def aperture_positions(self, samples_per_view):
+        """The :meth:`reference`'s aperture positions on one axis (units of the view step), ``(n_views *
+        samples_per_view,)``: ``samples_per_view`` midpoints of every view's cell."""
+        m = _validate.integer_at_least("samples_per_view", samples_per_view, 1)
+        centres = regular_positions(self.n_views, 1)[:, 0, 0]
+        return (centres[:, None] + (np.arange(m) + 0.5) / m - 0.5).ravel()
 
     def aperture_refocus(self, slope, aperture_y, aperture_x, transmission, origin=(0.0, 0.0), shape=None):
         """Refocus over any aperture: the transmission-weighted mean of exact views on a grid of aperture positions.
@@ -546,24 +567,27 @@ class SyntheticScene:
         np.divide(num, den[..., None], out=out, where=den[..., None] > 0)
         return out.astype(np.float32)
 
-    def _aperture_sum(self, axis, positions, slope, interpolation):
-        """Sum over ``positions`` of the validity-weighted factors on ``axis``, and of the validity."""
+    def _aperture_sum(self, axis, positions, slope, interpolation, pixel_weights=(None,)):
+        """Sums over ``positions`` of the validity-weighted factors on ``axis``, and of the validity: one
+        ``(total, weight)`` pair per entry of ``pixel_weights`` (``(M, size)`` weights of every position's
+        pixels, ``None``: 1; only with exact interpolation)."""
         n = self.size
-        total, weight = None, np.zeros(n)
+        sums = [[None, np.zeros(n)] for _ in pixel_weights]
         for start in range(0, len(positions), _BATCH):
             batch = positions[start:start + _BATCH]
             shifts = slope * batch
             index, w0, w1 = _bilinear_taps(n, shifts)
-            if interpolation == "exact":
-                values = self._axis_factors(axis, batch, slope)
-                weighted = _expand(w0 + w1, values) * values
-            else:
-                values = self._axis_factors(axis, batch, 0.0)
-                weighted = _gather(values, index, w0) + _gather(values, index + 1, w1)
-            part = weighted.sum(axis=0)
-            total = part if total is None else total + part
-            weight += (w0 + w1).sum(axis=0)
-        return total, weight
+            values = self._axis_factors(axis, batch, slope if interpolation == "exact" else 0.0)
+            for pair, pixel_weight in zip(sums, pixel_weights):
+                if interpolation != "exact":
+                    part = (_gather(values, index, w0) + _gather(values, index + 1, w1)).sum(axis=0)
+                    taps = w0 + w1
+                else:
+                    taps = w0 + w1 if pixel_weight is None else (w0 + w1) * pixel_weight[start:start + _BATCH]
+                    part = (_expand(taps, values) * values).sum(axis=0)
+                pair[0] = part if pair[0] is None else pair[0] + part
+                pair[1] += taps.sum(axis=0)
+        return [tuple(pair) for pair in sums]
 
 
 def _item(pos, i):

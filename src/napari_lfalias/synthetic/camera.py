@@ -59,14 +59,23 @@ def vignetting_falloff(positions, shape, strength):
     """
     strength = _validate.non_negative_float("strength", strength)
     positions = np.asarray(positions, np.float64)
-    q = np.hypot(positions[..., 0], positions[..., 1])
-    rho_q = q / max(float(q.max()), 1e-9)
+    rho_q = np.hypot(positions[..., 0], positions[..., 1]) / _aperture_radius(positions)
     height, width = shape
-    y = (np.arange(height) - (height - 1) / 2) / max(height / 2, 1)
-    x = (np.arange(width) - (width - 1) / 2) / max(width / 2, 1)
-    rho_p2 = (y[:, None] ** 2 + x[None, :] ** 2) / 2
+    rho_p2 = _rho_p2_part(np.arange(height), height)[:, None] + _rho_p2_part(np.arange(width), width)[None, :]
     total = rho_q[..., None, None] ** 2 + rho_p2[None, None]
     return (1.0 / (1.0 + strength * total) ** 2).astype(np.float32)
+
+
+def _aperture_radius(positions):
+    """The unit of ``rho_q``: the largest distance of a view ``positions (..., 2)`` from the aperture's centre."""
+    return max(float(np.hypot(positions[..., 0], positions[..., 1]).max()), 1e-9)
+
+
+def _rho_p2_part(pixels, length):
+    """One axis's share of ``rho_p^2`` at (any real) pixel coordinates ``pixels`` of a view ``length`` px
+    long: the squared distance from the view's centre in half-lengths, halved (both axes add up to 1 at a
+    corner of a square view)."""
+    return ((pixels - (length - 1) / 2) / max(length / 2, 1)) ** 2 / 2
 
 
 def _falloff_as_exponentials(z_max):
@@ -137,12 +146,11 @@ def vignetted_reference(scene, slope, vignetting, *, samples_per_view=None, max_
     m = scene.aperture_samples(slope, max_step) if samples_per_view is None else \
         _validate.integer_at_least("samples_per_view", samples_per_view, 1)
     aperture = scene.aperture_positions(m)
-    positions = regular_positions(scene.n_views, scene.n_views)
-    q_max2 = max(float(np.max(positions[..., 0] ** 2 + positions[..., 1] ** 2)), 1e-18)
+    radius = _aperture_radius(regular_positions(scene.n_views, scene.n_views))
     size = scene.size
-    landing = (np.arange(size)[None, :] + slope * aperture[:, None] - (size - 1) / 2) / max(size / 2, 1)
-    # the fall-off's argument on one axis, for every aperture position and output pixel (M, size)
-    axis_part = aperture[:, None] ** 2 / q_max2 + landing ** 2 / 2
+    landing = np.arange(size)[None, :] + slope * aperture[:, None]  # where each ray lands in its view
+    # vignetting_falloff's argument on one axis, for every aperture position and output pixel (M, size)
+    axis_part = (aperture[:, None] / radius) ** 2 + _rho_p2_part(landing, size)
     z_max = vignetting * 2 * float(axis_part.max())
     if z_max == 0:
         return scene.reference(slope, m)

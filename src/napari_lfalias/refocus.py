@@ -121,12 +121,16 @@ class ShiftedStack:
         The slope the views were shifted for.
     positions : ndarray, shape (n, 2)
         View positions, in the order of ``values``.
+    graded : bool
+        Whether the light field has sample weights of its own (a vignette:
+        they may vary across the aperture, not only at the views' edges).
     """
 
     values: np.ndarray
     weights: np.ndarray
     slope: float
     positions: np.ndarray
+    graded: bool = False
 
     @property
     def n_views(self):
@@ -206,7 +210,7 @@ def shift_views(lf, slope, pad=0):
     values = np.empty((n,) + shape + (lf.n_channels,), np.float32)
     weights = np.empty((n,) + shape, np.float32)
     _run("shifted_stack", *_inputs(lf, slope), values, weights)
-    return ShiftedStack(values, weights, slope, lf.flat_positions().copy())
+    return ShiftedStack(values, weights, slope, lf.flat_positions().copy(), lf.weights is not None)
 
 
 def refocus(lf, slope):

@@ -39,6 +39,12 @@ when not given):
    is seen of it nearby, so its blur reaches under an occluder's outline.
 4. The views' composites are summed and normalised by their coverage.
 
+Where the light field has sample weights of its own (a calibrated
+vignette), a view's cell is not one weight: a blurred surface's box
+weighs each tap by the weights interpolated between the view and its
+neighbours at that pixel, as the vignette shades the aperture between
+them (:func:`~napari_lfalias._render_kernels._across_cell`).
+
 All of this runs over the image grown by the widest box's reach, with the
 disparity mirrored at the image's edge: a view shifted towards the edge
 holds samples beyond it, and a box cut off there averaged only the inner
@@ -314,6 +320,24 @@ def _nearest_first(positions):
     """Each view's others ``(n, n - 1)``, nearest first, for views at ``positions (n, 2)``."""
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
     return np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable")[:, 1:])
+
+
+def _neighbours(positions):
+    """Each view's neighbours ``(n, 2, 2)`` on each axis: the nearest view before and after it along the
+    axis among those at its position on the other axis (-1: none), for views at ``positions (n, 2)``."""
+    n = positions.shape[0]
+    out = np.full((n, 2, 2), -1, np.int64)
+    for axis in (0, 1):
+        along, across = positions[:, axis], positions[:, 1 - axis]
+        tolerance = 1e-6 * max(float(np.ptp(positions)), 1.0)
+        for i in range(n):
+            line = np.flatnonzero(np.abs(across - across[i]) <= tolerance)
+            before, after = line[along[line] < along[i] - tolerance], line[along[line] > along[i] + tolerance]
+            if before.size:
+                out[i, axis, 0] = before[np.argmax(along[before])]
+            if after.size:
+                out[i, axis, 1] = after[np.argmin(along[after])]
+    return out
 
 
 def _with_mixed_edges(disparity, slope, gap):
@@ -762,7 +786,8 @@ def _composite(layers, windows=None, trust=True):
     shape, n_ch = bins.shape[1:], stack.values.shape[-1]
     whole = ((0, shape[0], 0, shape[1]),) * 2
     sums = [np.zeros(shape + (n_ch,), np.float32)] + [np.zeros(shape, np.float32) for _ in range(3)]
-    # what the stand-ins of the samples a view lacks read besides the views (_render_kernels._stand_in)
+    # what the stand-ins of the samples a view lacks read besides the views (_render_kernels._stand_in), and
+    # each view's neighbours, whose weights a vignette's cells are weighed by (_render_kernels._across_cell)
     positions = np.ascontiguousarray(stack.positions, np.float64)
     nearest_first = _nearest_first(positions)
     sampled_rows = np.empty(bins.shape[:2], bool)
@@ -770,7 +795,8 @@ def _composite(layers, windows=None, trust=True):
     _run("sampled_lines", stack.weights, sampled_rows, sampled_cols)
     view_taps = layers.view_taps
     grid = (positions, np.ascontiguousarray(layers.bins[1] - stack.slope), nearest_first, layers.own,
-            np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows, sampled_cols)
+            np.array(layers.disparity.shape, np.int64), float(stack.slope), sampled_rows, sampled_cols,
+            _neighbours(positions), bool(stack.graded))
     for (y0, y1, x0, x1), (i0, i1, j0, j1) in [whole] if windows is None else windows:
         chunks = 4
         num = np.zeros((chunks, y1 - y0, x1 - x0, n_ch), np.float32)

@@ -154,19 +154,22 @@ def test_faint_aliasing_of_which_no_pixel_reaches_the_threshold_is_still_reduced
     assert metrics.psnr(lfa.reduce_aliasing(lf, slope, detector=detector).image, reference) < naive_psnr + 1
 
 
-def test_faint_aliasing_is_left_where_the_views_weigh_their_samples_unevenly(monkeypatch):
-    """Calibrated vignetting weighs each view's samples by its vignette: the rendering is not sure enough
-    there for the faint rule, which then replaces nothing the reduction without it would not."""
+def test_faint_aliasing_is_reduced_under_a_calibrated_vignette_too(monkeypatch):
+    """The same fine textures through a calibrated vignette, judged against the vignetted dense aperture the
+    camera records: no pixel scores T, the faint rule takes the rendering (measured: 44.1 dB naive, 48.4
+    reduced, 44.1 with the faint rule off). Before the renderer weighed the vignette across each view's cell
+    (stop 41) the rule was left out wherever the views weighed their samples unevenly."""
     scene = layered_scene([(4.5, "fine", (0.2, 0.5, 0.2, 0.6)), (-2.7, "fine", None)], n_views=7, size=96,
                           seed=1)
-    lf, slope = as_user_has_it(capture(scene.lightfield, vignetting=0.8, calibrated=True, seed=1)), 1.3
+    camera = {"vignetting": 0.8, "calibrated": True, "seed": 1}
+    lf, slope = as_user_has_it(capture(scene.lightfield, **camera)), 1.3
+    reference = reference_through(scene, slope, **camera)
+    naive_psnr = metrics.psnr(lfa.refocus(lf, slope), reference)
     detector = lfa.AliasingDetector(lf)
-    assert not detector.guide.even_weights.any()
-    score = detector.guide.cautious_scores(slope)
-    assert np.mean(score > depth_guided.FAINT_FRACTION * THRESHOLD) > 0.3  # what the faint rule would take
-    reduced = lfa.reduce_aliasing(lf, slope, detector=detector).image
+    assert np.mean(detector.guide.cautious_scores(slope) > THRESHOLD) < 0.01
+    assert metrics.psnr(lfa.reduce_aliasing(lf, slope, detector=detector).image, reference) > naive_psnr + 3
     monkeypatch.setattr(depth_guided, "FAINT_FRACTION", 1.0)
-    np.testing.assert_array_equal(reduced, lfa.reduce_aliasing(lf, slope, detector=detector).image)
+    assert metrics.psnr(lfa.reduce_aliasing(lf, slope, detector=detector).image, reference) < naive_psnr + 1
 
 
 # -- vignetting --------------------------------------------------------------------------------------

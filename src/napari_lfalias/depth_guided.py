@@ -87,8 +87,7 @@ sparse refocus and what a dense aperture would record.
   times the edge spread: faint aliasing (the ghosts of a fine or dim
   texture, a fraction of ``T`` each but a pattern a viewer sees) that the
   rendering predicts whatever its edges, where its blur lies within what
-  the views hold (:meth:`DepthGuide.within_support`) and the views weigh
-  their samples alike (:attr:`DepthGuide.even_weights`). Every other pixel keeps the
+  the views hold (:meth:`DepthGuide.within_support`). Every other pixel keeps the
   naive refocus exactly. A light field with nothing aliased comes back
   unchanged.
 
@@ -140,26 +139,19 @@ REPLACE_FRACTION = 0.25
 #: ``T`` with margins 3 to 8 gave +6.1 to +6.4 dB, and at 1/8 and 4 none below naive - 0.1 dB (margin 1:
 #: -1.04 dB on a slope whose naive refocus is 78 dB); kept off the image's edge, +6.12. Checked on fresh-c and
 #: fresh-d before the full run (181 slopes): +5.82 -> +6.63 dB where aliased, slopes below naive - 0.1 dB
-#: overall 3 -> 2, on clean pixels 5 -> 5. The full run, with :data:`EVEN_WEIGHTS` (1380 slopes): +5.75 ->
-#: +6.44 dB where aliased, below naive - 0.1 dB overall 12 -> 11, on clean pixels 15 -> 13.
+#: overall 3 -> 2, on clean pixels 5 -> 5. The full run, then not where the views weighed their samples
+#: unevenly (1380 slopes): +5.75 -> +6.44 dB where aliased, below naive - 0.1 dB overall 12 -> 11, on clean
+#: pixels 15 -> 13. Under calibrated vignetting the rule was left out from stop 38 to 40 (stop 39 measured it
+#: taken: more slopes below naive, results/accuracy_faint_under_vignetting.md): the renderer weighed each
+#: view's cell by the view's own weight, and the vignette's rendering was not sure enough for it. With the
+#: vignette weighed across each cell (stop 41, ``_render_kernels._across_cell``) it is taken there too:
+#: offline on the dumps of every weighted slope (``replacement_rules.py``-style), chosen on tune, holdout,
+#: fresh-a and b (103 slopes) +7.39 -> +8.43 dB where aliased, below naive - 0.1 dB 2 -> 0 (fresh 309 at 1.2:
+#: -0.84 -> -0.09); reported on fresh-c to f (149) +6.06 -> +7.72, below 0 -> 0, no slope more than 0.02 dB
+#: worse.
 FAINT_FRACTION = 0.125
 #: See :data:`FAINT_FRACTION`.
 FAINT_MARGIN = 4.0
-#: The faint aliasing is taken only where the views weigh their samples about alike: the least weight at
-#: least this share of the largest (:attr:`DepthGuide.even_weights`). With calibrated vignetting the
-#: rendering lost 2.5 dB against the naive refocus on the holdout's stripes at slope 0 (7x7 views: the
-#: stripes' box 41.4 dB naive, 38.9 rendered; 46.8 and 52.3 with the weights dropped), and the faint rule
-#: took it there (-0.02 -> -0.20 dB overall); on the vignetted random scenes it gained little (fresh-a, b:
-#: +0.5 dB where aliased, fresh-c, d: +0.05) against +1.7 and +1.3 dB on the others. Stop 39 measured the
-#: whole benchmark without it (0): +6.44 -> +6.64 dB where aliased (the lenslet captures up to +10 dB), but
-#: slopes below naive - 0.1 dB overall 11 -> 12, on clean pixels 13 -> 15, where aliased 54 -> 76
-#: (results/accuracy_faint_under_vignetting.md); kept at 0.9. Those figures judged the synthetic arrays'
-#: calibrated vignetting against the uniform aperture, which no camera with that vignette records; against
-#: the vignetted dense aperture (stop 40, results/accuracy.md notes) the gate still holds: on the 89 weighted
-#: synthetic slopes of tune, holdout, fresh-a and b, without it +6.89 -> +7.33 dB where aliased but slopes
-#: below naive - 0.1 dB 1 -> 2 (fresh 411 at 1.0: -1.30 dB), on fresh-c to f's 149 +5.72 -> +7.14 but on
-#: clean pixels 0 -> 2.
-EVEN_WEIGHTS = 0.9
 #: Views whose luminance varies less than this (std / mean) agree: the pixel is in focus.
 MIN_ANGULAR_CV = 0.01
 #: Floor of the luminance a difference is divided by, as a fraction of the brightest.
@@ -500,22 +492,6 @@ class DepthGuide:
             for name in ("renderer", "layers"):
                 self._at_slope.pop(name, None)
 
-    @functools.cached_property
-    def even_weights(self):
-        """Where the views that hold samples at all weigh their samples about alike, ``(Y, X)`` bool (the
-        least weight at least :data:`EVEN_WEIGHTS` of the largest), or ``None``: everywhere (no weights).
-
-        Weights that vary over the views (calibrated vignetting: flat-fielded samples weighted by the
-        vignette) shade the aperture of the naive refocus and of the rendering, as the vignette shades a
-        dense aperture's rays; there the faint aliasing (:data:`FAINT_FRACTION`) measured more harm than
-        elsewhere and is not taken (:data:`EVEN_WEIGHTS`)."""
-        weights = self.lf.flat_weights()
-        if weights is None:
-            return None
-        used = (weights.reshape(weights.shape[0], -1).max(axis=1) > 0)[:, None, None]  # views with any sample
-        least = np.min(weights, axis=0, initial=1.0, where=used)
-        return least >= EVEN_WEIGHTS * np.max(weights, axis=0, initial=0.0, where=used)
-
     def within_support(self, slope):
         """Where the rendering at ``slope`` blurs only samples the views hold, ``(Y, X)`` bool: pixels at
         least half the blur's reach (``|d - slope|`` times :func:`aperture_radius`) from the image's edge,
@@ -537,9 +513,8 @@ class DepthGuide:
 
     def faint_where(self, slope):
         """Where the reduction may take the faint aliasing at ``slope`` (:data:`FAINT_FRACTION`), ``(Y, X)``
-        bool: :meth:`within_support`, where the views weigh their samples alike (:attr:`even_weights`)."""
-        where = self.within_support(slope)
-        return where if self.even_weights is None else where & self.even_weights
+        bool: :meth:`within_support` (under calibrated vignetting too since stop 41: see the constant)."""
+        return self.within_support(slope)
 
     def edge_spread(self, slope):
         """How much the rendering at ``slope`` depends on where its depth edges are: the largest

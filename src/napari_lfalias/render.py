@@ -295,7 +295,8 @@ def _disoccluded_in_focus(stack, bins, landed, centre, edges, centres, taps, ord
     what lies behind it (fresh scene 1102 at 3.0, tiles in focus before
     stripes: counted in focus there, 1.6 dB lost on its clean pixels).
     """
-    sharp = np.flatnonzero(~np.any(taps != 0, axis=1))
+    held = np.bincount(_bin_index(edges, centre.ravel()), minlength=len(taps)) > 0
+    sharp = np.flatnonzero(~np.any(taps != 0, axis=1) & held)  # an empty bin is no surface
     if sharp.size == 0:
         return
     rank = np.empty(len(order), np.int64)

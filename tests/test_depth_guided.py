@@ -812,9 +812,10 @@ def test_the_gaps_between_the_crests_of_an_aliased_region_are_replaced_and_wider
 
 def test_an_aliased_region_striped_by_its_score_takes_the_rendering_between_the_stripes(monkeypatch):
     """Fresh scene 617 at 1.8 (5x5 views): a checker square 3.1 px per view step out of focus, partly behind
-    a smooth square, before stripes 5.6 px out of focus, both striped in the naive refocus. Their score, and so the replaced pixels, were stripes too, and the
-    blend gave the pixels between them half the rendering or less: +11.3 dB over the naive refocus (+18.4
-    where aliased), the rendering of every pixel +16.5; with the gaps replaced +13.2 (+26.9)."""
+    a smooth square, before stripes 5.6 px out of focus, both striped in the naive refocus. Their score, and
+    so the replaced pixels, were stripes too, and the blend gave the pixels between them half the rendering
+    or less: +11.3 dB over the naive refocus (+18.4 where aliased), the rendering of every pixel +16.5; with
+    the gaps replaced +13.2 (+26.9)."""
     case, slope = benchmark_cases().fresh_case(617, "test"), 1.8
     lf = as_user_has_it(case.lightfield)
     naive, reference = lfa.refocus(lf, slope), case.reference(slope)

@@ -167,9 +167,9 @@ FAINT_MARGIN = 4.0
 #: +2.96 -> +3.06 overall, slopes below naive - 0.1 dB unchanged (2 overall, 2 on clean pixels). Without the
 #: edge gate +8.73 (fresh 302 at -1.9 +6.5 -> +8.1), but a wall a period off along an outline took more of
 #: its wrong rendering (``test_the_occlusion_order_is_judged_with_the_surfaces_in_focus_...``: +2.9 -> +1.3
-#: dB); 2 px gaps +8.73 and one more slope below naive on clean pixels; gaps among the faint pixels
-#: (:data:`FAINT_FRACTION`) closed too +8.85, but fresh 613 at 0.1 (a texture the rendering gets 3 dB below
-#: the naive refocus's 56 dB) fell from +0.95 to -1.48 dB.
+#: dB); ungated, 2 px gaps +8.73 and one more slope below naive on clean pixels, and gaps among the faint
+#: pixels (:data:`FAINT_FRACTION`) closed too +8.85, but fresh 613 at 0.1 (a texture the rendering gets
+#: 3 dB below the naive refocus's 56 dB) fell from +0.95 to -1.48 dB.
 GAP_PX = 1
 #: Views whose luminance varies less than this (std / mean) agree: the pixel is in focus.
 MIN_ANGULAR_CV = 0.01

@@ -3,9 +3,6 @@ the full grid, the dense reference of a synthetic scene converges, and no case h
 truth.
 """
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -15,8 +12,9 @@ from napari_lfalias.baselines import view_spacing
 from napari_lfalias.synthetic import layered_scene
 from napari_lfalias.synthetic.camera import capture, vignetted_reference
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import accuracy_cases  # noqa: E402  (benchmarks/ is not a package; the benchmarks import it the same way)
+from _accuracy_scenes import benchmark_cases
+
+accuracy_cases = benchmark_cases()
 
 #: The sub-grids of a 9x9 array the benchmark keeps (rows = columns).
 SUB_GRIDS = ((1, 4, 7), (0, 2, 4, 6, 8))

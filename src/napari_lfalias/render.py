@@ -295,7 +295,8 @@ def _disoccluded_in_focus(stack, bins, landed, centre, edges, centres, taps, ord
     what lies behind it (fresh scene 1102 at 3.0, tiles in focus before
     stripes: counted in focus there, 1.6 dB lost on its clean pixels).
     """
-    held = np.bincount(_bin_index(edges, centre.ravel()), minlength=len(taps)) > 0
+    centre_bins = _bin_index(edges, centre)
+    held = np.bincount(centre_bins.ravel(), minlength=len(taps)) > 0
     sharp = np.flatnonzero(~np.any(taps != 0, axis=1) & held)  # an empty bin is no surface
     if sharp.size == 0:
         return
@@ -307,7 +308,7 @@ def _disoccluded_in_focus(stack, bins, landed, centre, edges, centres, taps, ord
         return
     nearest = int(sharp[np.argmin(np.abs(centres[sharp] - stack.slope))])
     # where the centre sees a surface in front of the in-focus one: only there can it not see that one
-    hidden = rank[_bin_index(edges, centre)] <= occluders[rank[nearest]]
+    hidden = rank[centre_bins] <= occluders[rank[nearest]]
     if not hidden.any():
         return
     positions = np.ascontiguousarray(stack.positions, np.float64)

@@ -510,3 +510,18 @@ def test_the_focus_test_sees_a_texture_the_central_views_of_an_even_grid_shift_a
     assert test.textured.mean() > 0.95
     assert test(3.9).mean() > 0.9
     assert test(1.0).mean() < 0.05
+
+
+def test_the_focus_test_at_several_slopes_finds_a_surface_in_focus_at_any_of_them_on_the_pixels_asked():
+    from napari_lfalias.disparity import FocusTest
+
+    scene = layered_scene([(3.9, "checker", None)], n_views=6, size=96, seed=1)
+    test = FocusTest(scene.lightfield)
+    assert test(3.8).mean() < 0.05  # a tenth of a pixel per view step off: a fine checker fails the test
+    np.testing.assert_array_equal(test.at_any([3.9]), test(3.9))
+    np.testing.assert_array_equal(test.at_any([3.8, 3.9, 4.0]), test(3.8) | test(3.9) | test(4.0))
+    where = np.zeros(test.textured.shape, bool)
+    where[:40, 10:50] = True
+    asked = test.at_any([3.8, 4.0], where=where)
+    assert not asked[~where].any()
+    np.testing.assert_array_equal(asked[where], test.at_any([3.8, 4.0])[where])

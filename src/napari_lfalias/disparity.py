@@ -1161,13 +1161,31 @@ class FocusTest:
 
     def __call__(self, slope):
         """``(Y, X)`` bool: in focus at ``slope`` (never on flat patches: they say nothing)."""
+        return self.at_any([slope])
+
+    def at_any(self, slopes, where=None):
+        """``(Y, X)`` bool: in focus at one of ``slopes`` at least, on ``where`` only (default: everywhere;
+        the tiles of :data:`TILE` without a pixel of it are not tested)."""
         shape = self.features.shape[2:]
-        share = _sweep(self.features, self.valid, self.positions, np.array([float(slope)]),
-                       _all_tiles(1, shape, TILE), shape, TILE, tolerance=self.tolerance)[0]
+        slopes = np.asarray(slopes, np.float64).reshape(-1)
+        needed = _all_tiles(slopes.size, shape, TILE)
+        if where is not None:
+            needed &= _tiles_holding(where, TILE)
+        share = _sweep(self.features, self.valid, self.positions, slopes, needed, shape, TILE,
+                       tolerance=self.tolerance)
         # the reference views agree with themselves: count the others only
         n, n_ref = len(self.positions), len(_reference_views(self.positions))
         others = (share * n - n_ref) / max(n - n_ref, 1)
-        return (others >= IN_FOCUS_SHARE) & self.textured
+        found = (others >= IN_FOCUS_SHARE).any(axis=0) & self.textured
+        return found if where is None else found & where
+
+
+def _tiles_holding(mask, tile):
+    """``(TY, TX)`` bool: the tiles of ``tile`` px (rows, columns) holding a pixel of ``mask (Y, X)``."""
+    rows, cols = -(-mask.shape[0] // tile[0]), -(-mask.shape[1] // tile[1])
+    padded = np.zeros((rows * tile[0], cols * tile[1]), bool)
+    padded[:mask.shape[0], :mask.shape[1]] = mask
+    return padded.reshape(rows, tile[0], cols, tile[1]).any(axis=(1, 3))
 
 
 def _texture_energy(features):

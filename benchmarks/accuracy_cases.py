@@ -38,6 +38,8 @@ disparity. Cases are split:
   (scene 1510) to find the focus test's texture on even grids; fresh-n
   (seeds 1600-1619) was first run for stop 27's report. fresh-o (seeds
   1700-1719) was first run at the start of stop 32, before any change.
+  fresh-p (seeds 1800-1819) was first run at the start of stop 44, before
+  any change, then used to find the focus band (scene 1805 at -4.4).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -220,7 +222,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-g": range(900, 920), "fresh-h": range(1000, 1020), "fresh-i": range(1100, 1120),
                "fresh-j": range(1200, 1220), "fresh-k": range(1300, 1320),
                "fresh-l": range(1400, 1420), "fresh-m": range(1500, 1520),
-               "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720)}
+               "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
+               "fresh-p": range(1800, 1820)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

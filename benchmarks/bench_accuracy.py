@@ -177,7 +177,7 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     parser.add_argument("--split", default=None,
-                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-o)")
+                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-p)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None else args.out.parent / "accuracy"

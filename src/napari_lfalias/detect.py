@@ -104,6 +104,7 @@ from scipy.special import gammaln
 
 from . import _budget, _validate
 from ._numerics import unit_scale
+from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import REC709, LightField
 from .presets import METHODS, THRESHOLD_SCALES, detection_options
@@ -595,13 +596,9 @@ class AliasingDetector:
     # -- which tiles need work -----------------------------------------------------
     def _candidate_tiles(self, level, region):
         """Tiles that hold at least one pixel of ``region`` (all of them without one)."""
-        shape = self._tile_ranges(level)[0].shape
         if region is None:
-            return np.ones(shape, bool)
-        height, width = region.shape
-        padded = np.zeros((shape[0] * self.tile, shape[1] * self.tile), bool)
-        padded[:height, :width] = region
-        return padded.reshape(shape[0], self.tile, shape[1], self.tile).any(axis=(1, 3))
+            return np.ones(self._tile_ranges(level)[0].shape, bool)
+        return tiles_holding(region, self.tile)
 
     def _flat_tiles(self, level, slope, threshold, scale, method, gamma, candidates):
         """Tiles to skip: their Cv provably stays at or below the threshold, and skipping them pays.

@@ -85,6 +85,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _validate
+from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import LightField
 from .pyramid import _reduce_stack, level_shape
@@ -1170,7 +1171,7 @@ class FocusTest:
         slopes = np.asarray(slopes, np.float64).reshape(-1)
         needed = _all_tiles(slopes.size, shape, TILE)
         if where is not None:
-            needed &= _tiles_holding(where, TILE)
+            needed &= tiles_holding(where, TILE)
         share = _sweep(self.features, self.valid, self.positions, slopes, needed, shape, TILE,
                        tolerance=self.tolerance)
         # the reference views agree with themselves: count the others only
@@ -1178,14 +1179,6 @@ class FocusTest:
         others = (share * n - n_ref) / max(n - n_ref, 1)
         found = (others >= IN_FOCUS_SHARE).any(axis=0) & self.textured
         return found if where is None else found & where
-
-
-def _tiles_holding(mask, tile):
-    """``(TY, TX)`` bool: the tiles of ``tile`` px (rows, columns) holding a pixel of ``mask (Y, X)``."""
-    rows, cols = -(-mask.shape[0] // tile[0]), -(-mask.shape[1] // tile[1])
-    padded = np.zeros((rows * tile[0], cols * tile[1]), bool)
-    padded[:mask.shape[0], :mask.shape[1]] = mask
-    return padded.reshape(rows, tile[0], cols, tile[1]).any(axis=(1, 3))
 
 
 def _texture_energy(features):

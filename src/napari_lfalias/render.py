@@ -84,6 +84,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _validate
+from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import LightField
 from .refocus import _KERNEL_LOCK, refocus, shift_views
@@ -668,10 +669,8 @@ def _windows(within, margin, tile, most):
     every pixel of ``within``: runs of tiles along each row of tiles that hold one, grown by ``margin``;
     ``None`` (render the whole image) where they would cover more than ``most`` of it."""
     n_rows, n_cols = within.shape
-    rows, cols = -(-n_rows // tile), -(-n_cols // tile)
-    padded = np.zeros((rows * tile, cols * tile), bool)
-    padded[:n_rows, :n_cols] = within
-    wanted = padded.reshape(rows, tile, cols, tile).any(axis=(1, 3))
+    wanted = tiles_holding(within, tile)
+    rows, cols = wanted.shape
     windows, area = [], 0
     for r in range(rows):
         c = 0

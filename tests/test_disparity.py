@@ -512,6 +512,51 @@ def test_the_focus_test_sees_a_texture_the_central_views_of_an_even_grid_shift_a
     assert test(1.0).mean() < 0.05
 
 
+@pytest.mark.parametrize("n_views, texture", [(6, "noise"), (4, "noise"), (8, "bricks")])
+def test_the_focus_test_finds_a_wall_in_focus_right_beside_a_defocused_occluder_on_an_even_grid(n_views, texture,
+                                                                                                 monkeypatch):
+    """On an even grid the central views lie half a view step off the centre of the aperture: within half
+    the disparity step of a defocused occluder's outline (here 3.5 px) some of them see the occluder where
+    the centre sees the wall, and the wall matched none of the views against their mean. Each central view
+    alone is a reference too."""
+    from napari_lfalias.disparity import FocusTest
+
+    scene = layered_scene([(2.5, "noise", (0.3, 0.7, 0.3, 0.7)), (-4.5, texture, None)], n_views=n_views, size=96,
+                          seed=2)
+    test = FocusTest(as_user_has_it(scene.lightfield))
+    wall = scene.disparity == np.float32(-4.5)
+    ring = wall & (distance_from_depth_edges(scene.disparity) <= 3)
+    ring[:8], ring[-8:], ring[:, :8], ring[:, -8:] = False, False, False, False
+    in_focus = test(-4.5)
+    with monkeypatch.context() as patch:  # the trap: against the mean of the central views alone
+        patch.setattr(FocusTest, "_seen_by_all", lambda self, slopes: np.zeros(self.textured.shape, bool))
+        assert test(-4.5)[ring].mean() < 0.05
+    assert in_focus[ring].mean() > 0.7
+    assert in_focus[INTERIOR][(wall & ~ring)[INTERIOR]].mean() > 0.95
+    # nor does a single reference find the wall in focus where it is not, or the occluder at the wall's slope
+    assert test(-3.5)[wall].mean() < 0.01
+    assert in_focus[~wall].mean() < 0.05
+
+
+def test_the_focus_test_agrees_with_the_views_own_comparison_with_the_centre():
+    """The share of the views that agree with the centre view of an odd grid, counted here in numpy."""
+    from napari_lfalias.disparity import IN_FOCUS_SHARE, FocusTest
+
+    scene = layered_scene([(2.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-1.0, "noise", None)], n_views=3, size=48, seed=2)
+    test = FocusTest(scene.lightfield)
+    centre, slope = 4, -1.0  # integer shifts: no resampling
+    features, positions = test.features, test.positions
+    agree = np.zeros(features.shape[2:])
+    inside = np.zeros(features.shape[2:], bool)
+    inside[2:-2, 2:-2] = True
+    for i, (qy, qx) in enumerate(positions):
+        shifted = np.roll(features[i], (-int(slope * qy), -int(slope * qx)), axis=(1, 2))
+        agree += np.sum((shifted - features[centre]) ** 2, axis=0) <= test.tolerance
+    expected = ((agree - 1) / 8 >= IN_FOCUS_SHARE) & test.textured
+    np.testing.assert_array_equal(test(slope)[inside], expected[inside])
+    assert expected[inside].mean() > 0.5 and not expected[inside].all()
+
+
 def test_the_focus_test_at_several_slopes_finds_a_surface_in_focus_at_any_of_them_on_the_pixels_asked():
     from napari_lfalias.disparity import FocusTest
 

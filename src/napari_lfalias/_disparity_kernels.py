@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["feature_planes", "sweep_costs", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets",
+__all__ = ["feature_planes", "sweep_costs", "agreeing_shares", "wls_rows", "box_mean_stack", "guided_windows", "subslope_offsets",
            "shear_slices", "unshear_min", "winner_scan", "relative_costs"]
 
 
@@ -105,12 +105,41 @@ def _add_view(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi,
 
 
 @njit(cache=True, inline="always")
+def _view_window(s, positions, i, n_rows, n_cols, y0, y1, x0, x1):
+    """View ``i``'s taps at slope ``s`` and the part ``(ya, yb, xa, xb)`` of the tile ``y0 .. y1, x0 .. x1``
+    where all of them lie inside it: ``(by, fy, bx, fx, ya, yb, xa, xb)``."""
+    by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
+    bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
+    return by, fy, bx, fx, max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
+
+
+@njit(cache=True, inline="always")
+def _mean_of_views(features, valid, has_valid, positions, s, weights, y0, y1, x0, x1, ref, ref_count):
+    """``ref (rows, K, width)``: the weighted mean at slope ``s`` of the views with a ``weights (n,)`` above 0
+    over the tile ``y0 .. y1, x0 .. x1`` (0 where none has a sample), and their summed weight ``ref_count``."""
+    n_rows, n_cols = features.shape[2], features.shape[3]
+    ref[:] = 0.0
+    ref_count[:] = 0.0
+    for i in range(weights.shape[0]):
+        if weights[i] == 0.0:
+            continue
+        by, fy, bx, fx, ya, yb, xa, xb = _view_window(s, positions, i, n_rows, n_cols, y0, y1, x0, x1)
+        if yb > ya and xb > xa:
+            _add_view(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, np.float32(weights[i]),
+                      ref[ya - y0:], ref_count[ya - y0:])
+    for r in range(y1 - y0):
+        for x in range(x1 - x0):
+            inv = np.float32(1.0) / ref_count[r, x] if ref_count[r, x] > 0.0 else np.float32(0.0)
+            for k in range(ref.shape[1]):
+                ref[r, k, x] *= inv
+
+
+@njit(cache=True, inline="always")
 def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_hi, x0, ty0, ref, ref_count,
-                groups, acc, cnt, tolerance, within, scale):
+                groups, acc, cnt, scale):
     """Squared feature differences of view ``i``'s samples to ``ref``, times ``scale``, added to the groups
     ``groups`` of ``acc``/``cnt (G, rows, width)`` (tile origin ``ty0, x0``); rows ``y0 .. y1``, columns
-    ``x_lo .. x_hi``. With ``within``, 1 where the difference is at most ``tolerance[y, x]`` (else 0) is added
-    instead."""
+    ``x_lo .. x_hi``."""
     n_feat = features.shape[1]
     a = np.float32((1.0 - fy) * (1.0 - fx))
     b = np.float32((1.0 - fy) * fx)
@@ -140,13 +169,8 @@ def _add_errors(features, valid, has_valid, i, by, fy, bx, fx, y0, y1, x_lo, x_h
             for x in range(width):
                 diff = a * row0[x] + b * row0[x + step_x] + c * row1[x] + d * row1[x + step_x] - rk[x]
                 err[x] += diff * diff
-        if within:
-            tol = tolerance[y, x_lo:x_hi]
-            for x in range(width):
-                err[x] = np.float32(1.0) if err[x] <= tol[x] else np.float32(0.0)
-        else:
-            for x in range(width):
-                err[x] *= scale
+        for x in range(width):
+            err[x] *= scale
         for g in groups:
             acc_g = acc[g, r, x_lo - x0:x_hi - x0]
             cnt_g = cnt[g, r, x_lo - x0:x_hi - x0]
@@ -192,7 +216,7 @@ def _cells(member):
 
 @njit(cache=True, parallel=True, fastmath=True)
 def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member, min_count, group_scale,
-                border_rule, outside_penalty, tiles, first, order, tolerance, within, view_scale, out):
+                border_rule, outside_penalty, tiles, first, order, view_scale, out):
     """Occlusion-aware matching cost of every tile at each of its slopes.
 
     Tile-major: a tile's views are read into the cache once and all its
@@ -227,21 +251,15 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         views out, their differences the largest, cannot win by that), and
         the pixel's cost is multiplied by ``1 + outside_penalty * (share of
         all the views outside)`` (of two slopes that fit about equally
-        well, the one more views see wins). Not with ``within``.
+        well, the one more views see wins).
     outside_penalty : float32
         See ``border_rule``.
     tiles : (T, 4) int64
         ``(y0, y1, x0, x1)`` of every tile.
     first : (T + 1,) int64, order : (S,) int64
         Tile ``t`` needs the slopes ``order[first[t]:first[t + 1]]``.
-    tolerance : (Y, X) float32, within : bool
-        With ``within``, ``out`` is instead the share (by weight) of all
-        the views whose difference to the reference is at most
-        ``tolerance`` at the pixel (the views that agree with the centre);
-        ``member`` then holds the one group of all the views.
     view_scale : (m, n) float32
-        Factor of view ``i``'s squared differences at slope ``j`` (not
-        used with ``within``).
+        Factor of view ``i``'s squared differences at slope ``j``.
     out : (m, Y, X) float32
         Smallest group's weighted mean of the squared feature differences
         to the (weighted) reference; left as it is where a tile does not
@@ -252,6 +270,9 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
     n, n_feat, n_rows, n_cols = features.shape
     n_groups = member.shape[1]
     view_cell, group_cells, group_size, n_cells = _cells(member)
+    ref_weights = np.zeros(n, np.float32)
+    for u in range(ref_views.shape[0]):
+        ref_weights[ref_views[u]] = 1.0
     view_cells = [view_cell[i:i + 1] for i in range(n)]
     group_views = np.zeros(n_groups, np.float32)
     for i in range(n):
@@ -274,28 +295,12 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
         for idx in range(first[t], first[t + 1]):
             j = order[idx]
             s = slopes[j]
-            ref[:] = 0.0
-            ref_count[:] = 0.0
             acc[:] = 0.0
             cnt[:] = 0.0
-            for u in range(ref_views.shape[0]):
-                i = ref_views[u]
-                by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
-                bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
-                ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
-                if yb > ya and xb > xa:
-                    _add_view(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0,
-                              np.float32(1.0), ref[ya - y0:], ref_count[ya - y0:])
-            for r in range(height):
-                for x in range(width):
-                    inv = np.float32(1.0) / ref_count[r, x] if ref_count[r, x] > 0.0 else np.float32(0.0)
-                    for k in range(n_feat):
-                        ref[r, k, x] *= inv
+            _mean_of_views(features, valid, has_valid, positions, s, ref_weights, y0, y1, x0, x1, ref, ref_count)
             clipped = False  # some view samples outside the image in this tile
             for i in range(n):
-                by, fy, ylo, yhi = _taps(s * positions[i, 0], n_rows)
-                bx, fx, xlo, xhi = _taps(s * positions[i, 1], n_cols)
-                ya, yb, xa, xb = max(y0, ylo), min(y1, yhi), max(x0, xlo), min(x1, xhi)
+                by, fy, bx, fx, ya, yb, xa, xb = _view_window(s, positions, i, n_rows, n_cols, y0, y1, x0, x1)
                 covers = ya == y0 and yb == y1 and xa == x0 and xb == x1
                 if not covers and not clipped and border_rule:
                     clipped = True
@@ -307,7 +312,7 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                 if yb <= ya or xb <= xa:
                     continue
                 _add_errors(features, valid, has_valid, i, by, fy, bx, fx, ya, yb, xa, xb, x0, y0, ref,
-                            ref_count, view_cells[i], acc, cnt, tolerance, within, view_scale[j, i])
+                            ref_count, view_cells[i], acc, cnt, view_scale[j, i])
             for r in range(height):
                 best[:] = np.inf
                 if clipped:
@@ -328,11 +333,6 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                         for x in range(width):
                             group_acc[x] += acc[c, r, x]
                             group_cnt[x] += cnt[c, r, x]
-                    if within:  # the share of the views that agree (group 0: all of them)
-                        for x in range(width):
-                            c0 = group_cnt[x]
-                            best[x] = group_acc[x] / c0 if c0 > 0.0 else np.float32(0.0)
-                        continue
                     least = min_count[g]
                     scale = group_scale[g]
                     if clipped:
@@ -352,6 +352,99 @@ def sweep_costs(features, valid, has_valid, positions, slopes, ref_views, member
                     for x in range(width):
                         best[x] *= np.float32(1.0) + outside_penalty * (np.float32(1.0) - share[0, x])
                 out[j, y0 + r, x0:x1] = best
+
+
+@njit(cache=True, parallel=True, fastmath=True)
+def agreeing_shares(features, valid, has_valid, positions, slopes, references, tiles, first, order, tolerance, out):
+    """The share of the views that agree with each of several references, at every pixel of the tiles asked.
+
+    Each view's samples are resampled once per slope and compared with
+    every reference (a weighted mean of some views at the same slope): the
+    focus test's mean of the central views and each of them alone, in one
+    pass over the views.
+
+    Parameters
+    ----------
+    features, valid, has_valid, positions, slopes
+        As ``sweep_costs``.
+    references : (R, n) float32
+        Weight of each view in each reference's mean (0: not in it).
+    tiles, first, order
+        As ``sweep_costs``.
+    tolerance : (Y, X) float32
+        A view agrees where its squared feature difference is at most this.
+    out : (m, R, Y, X) float32
+        For slope ``j`` and reference ``r``, the agreeing views' weight over
+        the weight of the views with a sample there (0 where the reference
+        has none); left as it is where a tile does not need slope ``j``.
+    """
+    n, n_feat, n_rows, n_cols = features.shape
+    n_refs = references.shape[0]
+    for t in prange(tiles.shape[0]):
+        y0, y1, x0, x1 = tiles[t, 0], tiles[t, 1], tiles[t, 2], tiles[t, 3]
+        height, width = y1 - y0, x1 - x0
+        ref = np.empty((n_refs, height, n_feat, width), np.float32)
+        ref_count = np.empty((n_refs, height, width), np.float32)
+        agree = np.empty((n_refs, height, width), np.float32)
+        seen = np.empty((height, width), np.float32)
+        sample = np.empty((n_feat, width), np.float32)
+        keep = np.empty(width, np.float32)
+        err = np.empty(width, np.float32)
+        for idx in range(first[t], first[t + 1]):
+            j = order[idx]
+            s = slopes[j]
+            agree[:] = 0.0
+            seen[:] = 0.0
+            for r in range(n_refs):
+                _mean_of_views(features, valid, has_valid, positions, s, references[r], y0, y1, x0, x1, ref[r],
+                               ref_count[r])
+            for i in range(n):
+                by, fy, bx, fx, ya, yb, xa, xb = _view_window(s, positions, i, n_rows, n_cols, y0, y1, x0, x1)
+                if yb <= ya or xb <= xa:
+                    continue
+                a = np.float32((1.0 - fy) * (1.0 - fx))
+                b = np.float32((1.0 - fy) * fx)
+                c = np.float32(fy * (1.0 - fx))
+                d = np.float32(fy * fx)
+                step_y = 1 if fy > 0.0 else 0
+                step_x = 1 if fx > 0.0 else 0
+                w = xb - xa
+                for y in range(ya, yb):
+                    r0 = y + by
+                    row = y - y0
+                    if has_valid:
+                        v0 = valid[i, r0, xa + bx:xb + bx + step_x]
+                        v1 = valid[i, r0 + step_y, xa + bx:xb + bx + step_x]
+                        for x in range(w):
+                            keep[x] = min(min(v0[x], v0[x + step_x]), min(v1[x], v1[x + step_x]))
+                    else:
+                        keep[:w] = 1.0
+                    for k in range(n_feat):
+                        row0 = features[i, k, r0, xa + bx:xb + bx + step_x]
+                        row1 = features[i, k, r0 + step_y, xa + bx:xb + bx + step_x]
+                        for x in range(w):
+                            sample[k, x] = a * row0[x] + b * row0[x + step_x] + c * row1[x] + d * row1[x + step_x]
+                    tol = tolerance[y, xa:xb]
+                    for r in range(n_refs):
+                        err[:w] = 0.0
+                        for k in range(n_feat):
+                            rk = ref[r, row, k, xa - x0:xb - x0]
+                            for x in range(w):
+                                diff = sample[k, x] - rk[x]
+                                err[x] += diff * diff
+                        rc = ref_count[r, row, xa - x0:xb - x0]
+                        ag = agree[r, row, xa - x0:xb - x0]
+                        for x in range(w):
+                            if rc[x] > 0.0 and err[x] <= tol[x]:
+                                ag[x] += keep[x]
+                    sn = seen[row, xa - x0:xb - x0]
+                    for x in range(w):
+                        sn[x] += keep[x]
+            for r in range(n_refs):
+                for row in range(height):
+                    for x in range(width):
+                        total = seen[row, x]
+                        out[j, r, y0 + row, x0 + x] = agree[r, row, x] / total if total > 0.0 else np.float32(0.0)
 
 
 @njit(cache=True, inline="always")

@@ -139,6 +139,9 @@ TEXTURE_FLOOR = 1e-5
 TEXTURE_MIN = 1e-4
 #: Radius (px) of the patch whose texture energy the focus test measures.
 FOCUS_RADIUS = 1
+#: Side (px) of the window in which a surface matched by one central view alone must fill half
+#: (:meth:`FocusTest.at_any`).
+ALONE_WINDOW = 5
 #: Regularisation of the guided filter (guide normalised to [0, 1]). Below a window's guide variance the
 #: filter keeps the guide's edges; HCI antinous's dark, weakly textured wall varies by about 1e-4, so at 1e-4
 #: the statue's cost spread over it (9x9 MSE x 100: 4.50 at 1e-4, 3.92 at 3e-5, 3.56 at 1e-5; 5x5 5.03 ->
@@ -405,24 +408,18 @@ def _all_tiles(n_slopes, shape, tile):
     return np.ones((n_slopes, -(-shape[0] // tile[0]), -(-shape[1] // tile[1])), bool)
 
 
-def _sweep(features, valid, positions, slopes, needed, shape, tile, tolerance=None, border_rule=False):
-    """Cost volume ``(m, Y, X)`` float32 (``inf`` where not computed or not enough views); with a
-    ``tolerance (Y, X)``, the share of the views that agree with the centre instead. With
+def _sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=False):
+    """Cost volume ``(m, Y, X)`` float32 (``inf`` where not computed or not enough views). With
     ``border_rule``, where some views sample outside the image only the groups with the largest share of
     their views inside count, and the cost is raised by :data:`OUTSIDE_PENALTY` (see ``sweep_costs``)."""
     member, min_count, group_scale = _groups(positions)
-    if tolerance is not None:  # the share of agreeing views is counted over all of them (group 0)
-        member, min_count, group_scale = member[:, :1], min_count[:1], group_scale[:1]
     out = np.full((len(slopes),) + shape, np.inf, np.float32)
     has_valid = valid is not None
     valid = valid if has_valid else np.ones((1, 1, 1), np.float32)
-    within = tolerance is not None
-    tolerance = np.ascontiguousarray(tolerance, np.float32) if within else np.zeros((1, 1), np.float32)
     blocks, first, order = _tile_plan(needed, shape, tile)
     _run("sweep_costs", features, valid, has_valid, np.ascontiguousarray(positions, np.float64),
          np.ascontiguousarray(slopes, np.float64), _reference_views(positions), member, min_count, group_scale,
-         border_rule, np.float32(OUTSIDE_PENALTY), blocks, first, order, tolerance, within,
-         _blur_scales(positions, slopes), out)
+         border_rule, np.float32(OUTSIDE_PENALTY), blocks, first, order, _blur_scales(positions, slopes), out)
     return out
 
 
@@ -1123,8 +1120,10 @@ class FocusTest:
     """Which pixels a slope brings into focus, from the views themselves (for the dense-aperture renderer).
 
     At slope ``s`` a pixel is in focus where enough of the views agree with
-    the centre of the aperture: at least :data:`IN_FOCUS_SHARE` of the other
-    views differ from it by at most :data:`IN_FOCUS_COST` of the local
+    the centre of the aperture (the mean of the central views; on an even
+    grid also one of them alone, :meth:`at_any`): at least
+    :data:`IN_FOCUS_SHARE` of the other views differ from it by at most
+    :data:`IN_FOCUS_COST` of the local
     texture energy (luminance and gradient features, as the estimator
     matches), on a patch textured enough to tell (:data:`TEXTURE_MIN`). The views a defocused occluder covers disagree, the others
     still agree, so a surface partly hidden by an occluder's blur counts as
@@ -1166,19 +1165,57 @@ class FocusTest:
 
     def at_any(self, slopes, where=None):
         """``(Y, X)`` bool: in focus at one of ``slopes`` at least, on ``where`` only (default: everywhere;
-        the tiles of :data:`TILE` without a pixel of it are not tested)."""
-        shape = self.features.shape[2:]
+        the tiles of :data:`TILE` without a pixel of it are not tested).
+
+        On an even grid the central views lie half a view step off the
+        centre of the aperture: beside a defocused occluder some of them see
+        its edge where the centre sees the surface behind, up to the two's
+        disparity step times that offset away (3.5 px for a step of 7), and
+        their mean matches no view there. So each central view alone is a
+        reference too, where a surface passes so (at least half of a window
+        of :data:`ALONE_WINDOW` px in focus either way): a single pixel that
+        matches one view alone is chance (fresh scene 319 at 3.6, lines 8.1 px
+        per view step out of focus, 12 pixels: 0.6 dB lost). Not where some
+        views sample beyond the image: the views left are those on one side,
+        near the one reference, and agree with it out of focus too.
+        """
         slopes = np.asarray(slopes, np.float64).reshape(-1)
-        needed = _all_tiles(slopes.size, shape, TILE)
-        if where is not None:
-            needed &= tiles_holding(where, TILE)
-        share = _sweep(self.features, self.valid, self.positions, slopes, needed, shape, TILE,
-                       tolerance=self.tolerance)
-        # the reference views agree with themselves: count the others only
-        n, n_ref = len(self.positions), len(_reference_views(self.positions))
-        others = (share * n - n_ref) / max(n - n_ref, 1)
-        found = (others >= IN_FOCUS_SHARE).any(axis=0) & self.textured
-        return found if where is None else found & where
+        where = self.textured if where is None else where & self.textured
+        if not where.any():
+            return where
+        central = _reference_views(self.positions)
+        n, n_ref = len(self.positions), len(central)
+        # the mean of the central views, then (on an even grid) each of them alone
+        references = np.zeros((1 + (n_ref if n_ref > 1 else 0), n), np.float32)
+        references[0, central] = 1.0
+        if n_ref > 1:
+            references[np.arange(1, n_ref + 1), central] = 1.0
+        needed = _all_tiles(slopes.size, where.shape, TILE) & tiles_holding(where, TILE)
+        blocks, first, order = _tile_plan(needed, where.shape, TILE)
+        share = np.zeros((slopes.size, len(references)) + where.shape, np.float32)
+        valid = self.valid if self.valid is not None else np.ones((1, 1, 1), np.float32)
+        _run("agreeing_shares", self.features, valid, self.valid is not None, self.positions, slopes, references,
+             blocks, first, order, self.tolerance, share)
+        # each reference's views agree with themselves: count the others only
+        counted = references.sum(axis=1)[None, :, None, None]
+        agree = (share * n - counted) / np.maximum(n - counted, 1) >= IN_FOCUS_SHARE
+        found = agree[:, 0].any(axis=0) & where
+        if n_ref > 1:
+            from scipy import ndimage
+
+            alone = agree[:, 1:].any(axis=(0, 1)) & where & self._seen_by_all(slopes) & ~found
+            if alone.any():
+                around = ndimage.uniform_filter((found | alone).astype(np.float32), ALONE_WINDOW)
+                found |= alone & (around >= 0.5)
+        return found
+
+    def _seen_by_all(self, slopes):
+        """``(Y, X)`` bool: the pixels every view samples within its image at each of ``slopes``."""
+        shape = self.features.shape[2:]
+        reach = np.ceil(np.abs(slopes).max(initial=0.0) * np.abs(self.positions).max(axis=0)).astype(int) + 1
+        inside = np.zeros(shape, bool)
+        inside[reach[0]:max(shape[0] - reach[0], 0), reach[1]:max(shape[1] - reach[1], 0)] = True
+        return inside
 
 
 def _texture_energy(features):

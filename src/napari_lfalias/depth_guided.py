@@ -686,10 +686,11 @@ class DepthGuide:
         from .render import BIN_PX
 
         textured = self.focus_test.textured
-        within = (np.abs(self.estimate[0] - slope) <= 1.5 * step) & textured
+        off = np.abs(self.estimate[0] - slope)
+        within = (off <= 1.5 * step) & textured
         if np.mean(within) < IN_BAND_SHARE:
             return np.zeros(found.shape, bool)
-        away = np.abs(self.estimate[0] - slope) * view_spacing(self.lf.positions) >= BIN_PX
+        away = off * view_spacing(self.lf.positions) >= BIN_PX
         untested = (self.estimate[1] >= MIN_TRUST) & ~found & textured & away
         near = np.zeros(found.shape, bool)
         surface = found | within

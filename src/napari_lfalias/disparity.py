@@ -1182,7 +1182,7 @@ class FocusTest:
         slopes = np.asarray(slopes, np.float64).reshape(-1)
         where = self.textured if where is None else where & self.textured
         if not where.any():
-            return where
+            return np.zeros(where.shape, bool)  # not self.textured itself: callers add to what comes back
         central = _reference_views(self.positions)
         n, n_ref = len(self.positions), len(central)
         # the mean of the central views, then (on an even grid) each of them alone

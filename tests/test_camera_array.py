@@ -111,6 +111,20 @@ def test_hci_disparity_sign_matches_ours_by_warping(antinous):
         assert errors[1] < 0.5 * errors[-1], (u, v, errors)
 
 
+def test_an_hci_folder_declares_its_occlusion_order_and_its_ground_truth_agrees(antinous):
+    """The HCI rig's smaller disparities (this package's sign) are nearer: so say the views at the depth edges
+    of antinous's ground truth, and so the loader declares it (every rendering reads it)."""
+    from napari_lfalias.baselines import _larger_is_nearer
+    from napari_lfalias.depth_guided import DepthGuide
+
+    assert antinous.meta["nearer"] == "smaller"
+    views = np.ascontiguousarray(antinous.views()[::2])  # every other view: the same geometry, half the work
+    positions = antinous.flat_positions()[::2]
+    assert not _larger_is_nearer(views, positions, antinous.meta["disparity"].astype(np.float64))
+    guide = DepthGuide(antinous, antinous.meta["disparity"])
+    assert guide.nearer == "smaller" and not guide.larger_first(0.0)
+
+
 def _flat_textured_patch(centre, disparity, half):
     """Centre of the most textured window whose ground-truth disparity is nearly constant."""
     gy, gx = np.gradient(centre)

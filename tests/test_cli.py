@@ -142,6 +142,32 @@ def test_refuses_to_overwrite_then_overwrites_when_asked(capsys, plane, tmp_path
     assert temporaries(tmp_path) == []
 
 
+def test_nearer_declares_the_occlusion_order_to_every_rendering(capsys, room, depth, tmp_path):
+    from napari_lfalias._cli.depth import read_disparity
+
+    path, scene = room
+    lf = scene.lightfield
+    estimate = read_disparity(depth).for_views(lf.image_shape)
+    out = tmp_path / "r.tif"
+    assert run(capsys, "reduce", path, "--slope", 4, "--disparity", depth, "--nearer", "smaller", "-o", out,
+               "-q")[0] == 0
+    expected = lfa.reduce_aliasing(lfa.LightField(lf.data, lf.positions, {"nearer": "smaller"}), 4.0,
+                                   disparity=estimate)
+    np.testing.assert_array_equal(tifffile.imread(out), expected.image)
+    assert not np.array_equal(expected.image, lfa.reduce_aliasing(lf, 4.0, disparity=estimate).image)  # judged: larger
+    assert tifffile.TiffFile(out).shaped_metadata[0]["nearer"] == "smaller"
+    out = tmp_path / "a.tif"
+    assert run(capsys, "refocus", path, "--slope", 4, "--antialias", "--disparity", depth, "--nearer", "smaller",
+               "-o", out, "-q")[0] == 0
+    np.testing.assert_array_equal(tifffile.imread(out),
+                                  lfa.antialiased_refocus(lf, 4.0, estimate, nearer="smaller"))
+    status, _, err = run(capsys, "refocus", path, "--slope", 4, "--nearer", "larger", "-o", tmp_path / "p.png")
+    assert status != 0 and "--nearer is used by --antialias" in err
+    status, _, err = run(capsys, "reduce", path, "--slope", 4, "--method", "analytic", "--nearer", "larger",
+                         "-o", tmp_path / "c.png")
+    assert status != 0 and "--nearer is used by --method depth" in err
+
+
 @pytest.mark.parametrize(
     "argv, words",
     [
@@ -253,11 +279,12 @@ def test_threshold_scale_and_solver_reach_the_api(capsys, plane, tmp_path):
 
 
 def test_option_choices_match_the_core():
-    from napari_lfalias import cli, detect, reduce
+    from napari_lfalias import cli, depth_guided, detect, reduce
 
     assert cli.METHODS == detect.METHODS
     assert cli.THRESHOLD_SCALES == detect.THRESHOLD_SCALES
     assert cli.SOLVERS == reduce.SOLVERS
+    assert ("auto",) + cli.NEARER == depth_guided.NEARER
 
 
 def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monkeypatch):

@@ -387,7 +387,9 @@ def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_L
         scene's ``disparity``, a decoder's ``lf.meta["disparity"]``).
     nearer : {"auto", "larger", "smaller"}
         Which disparities are in front (the order of the layers);
-        ``"auto"`` judges it from the views at the depth edges.
+        ``"auto"``: the light field's ``meta["nearer"]`` where it has one,
+        else judged from the views at the depth edges
+        (:func:`~napari_lfalias.depth_guided.occlusion_order`).
     max_layers : int
         Most disparity layers; a map with more distinct values is
         quantised into this many equal bins. Time grows with the layers.
@@ -409,7 +411,9 @@ def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_L
 
     lf = _lightfield(lf)
     slope = _validate.finite_float("slope", slope)
-    _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
+    from .depth_guided import occlusion_order
+
+    nearer = occlusion_order(lf, nearer)
     max_layers = _validate.integer_at_least("max_layers", max_layers, 1)
     disparity = _disparity_map(disparity, lf.image_shape)
     if nearer == "auto":

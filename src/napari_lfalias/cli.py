@@ -124,6 +124,7 @@ METHODS = ("depth", "analytic", "monte_carlo")
 THRESHOLD_SCALES = ("cv", "angular")
 PRESETS = ("paper",)
 SOLVERS = ("auto", "lu", "multigrid", "dct")
+NEARER = ("larger", "smaller")
 
 
 def add_detection_options(parser, threshold=None, threshold_scale="cv"):
@@ -186,6 +187,12 @@ def _add_disparity(parser, used_by):
         "--disparity", metavar="FILE",
         help=f"{used_by}: the disparity TIFF written by `lfalias depth` from the same input (its confidence "
         "beside it is read too) instead of estimating it again",
+    )
+    parser.add_argument(
+        "--nearer", choices=NEARER, default=None,
+        help=f"{used_by}: which disparities are in front where surfaces occlude each other, if you know your "
+        "camera's geometry (default: what the input's loader knows, e.g. smaller for an HCI folder, else "
+        "judged from the views at the depth edges, which cannot always tell)",
     )
 
 

@@ -332,6 +332,38 @@ def predicted_error(naive, rendered):
     return luminance_difference(naive, rendered)
 
 
+#: What ``nearer`` may say: which disparities are in front, or ``"auto"`` (the light field's own
+#: ``meta["nearer"]`` where its loader knows the camera, else judged from the views).
+NEARER = ("auto", "larger", "smaller")
+
+
+def occlusion_order(lf, nearer="auto"):
+    """``nearer`` for ``lf``: as given, or for ``"auto"`` the light field's ``meta["nearer"]`` where it has one.
+
+    Which side of a depth edge is in front is a property of the camera:
+    the sign of its disparities against its view positions. A loader that
+    knows the camera says so in ``meta["nearer"]`` (the HCI loader:
+    ``"smaller"``), and a user who knows it may set it, or pass
+    ``nearer``; otherwise it stays ``"auto"`` and is judged from the views
+    at the depth edges (:meth:`DepthGuide.larger_first`), which the views
+    cannot always tell (``benchmarks/results/accuracy.md``: wrong on 8 of
+    320 random scenes).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from napari_lfalias import LightField
+    >>> lf = LightField(np.zeros((3, 3, 8, 8), np.float32), meta={"nearer": "smaller"})
+    >>> occlusion_order(lf), occlusion_order(lf, "larger")
+    ('smaller', 'larger')
+    """
+    nearer = _validate.one_of("nearer", nearer, NEARER)
+    declared = lf.meta.get("nearer", "auto")
+    if declared not in NEARER:
+        raise ParameterError(f"lf.meta['nearer'] must be one of {', '.join(map(repr, NEARER))}, got {declared!r}")
+    return declared if nearer == "auto" else nearer
+
+
 class DepthGuide:
     """The disparity of a light field and its dense-aperture renderings, computed once and kept.
 
@@ -344,7 +376,9 @@ class DepthGuide:
         default: :func:`~napari_lfalias.disparity.estimate_disparity` on
         first use.
     nearer : {"auto", "larger", "smaller"}
-        Which disparities are in front (occlusion order).
+        Which disparities are in front (occlusion order); ``"auto"``: the
+        light field's ``meta["nearer"]`` where it has one, else judged from
+        the views (:func:`occlusion_order`).
 
     Examples
     --------
@@ -360,7 +394,7 @@ class DepthGuide:
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
         self._data = lf.compute() if lf.is_lazy else lf
         self.lf, self._unit = _unit_scaled(self._data)
-        self.nearer = _validate.one_of("nearer", nearer, ("auto", "larger", "smaller"))
+        self.nearer = occlusion_order(lf, nearer)
         self._given = disparity
         self._estimate = None
         self._alternative = None

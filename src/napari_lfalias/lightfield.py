@@ -118,6 +118,9 @@ class LightField:
         on 0. Defaults to the regular grid of :func:`regular_positions`.
     meta : dict, optional
         Free-form metadata (source, ground-truth disparity, grid model, ...).
+        ``meta["nearer"]`` (``"larger"`` or ``"smaller"``), where set, is
+        which disparities are in front: every rendering of the light field
+        orders occlusions so (:func:`~napari_lfalias.depth_guided.occlusion_order`).
     nonfinite : {"raise", "mask"}
         What to do with NaN or Inf samples: raise a ``ParameterError``
         (default), or give them zero weight (see ``weights``). Lazy data

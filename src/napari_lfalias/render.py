@@ -824,8 +824,10 @@ def antialiased_refocus(lf, slope, disparity=None, *, nearer="auto"):
         estimate's confidence is kept. Estimated with
         :func:`~napari_lfalias.disparity.estimate_disparity` when not given.
     nearer : {"auto", "larger", "smaller"}
-        Which disparities are in front; ``"auto"`` judges it from the
-        views at the depth edges.
+        Which disparities are in front; ``"auto"``: the light field's
+        ``meta["nearer"]`` where it has one (a loader that knows the camera
+        sets it), else judged from the views at the depth edges
+        (:func:`~napari_lfalias.depth_guided.occlusion_order`).
 
     Returns
     -------

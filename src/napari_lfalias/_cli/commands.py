@@ -136,6 +136,20 @@ def _given_disparity(args, method):
     return read_disparity(args.disparity)
 
 
+def _check_nearer(args, method):
+    """``--nearer`` only where a disparity is rendered (as ``--disparity``), before anything is decoded."""
+    if getattr(args, "nearer", None) is not None and method not in ("antialias", "depth"):
+        used = "--antialias" if method == "refocus" else "--method depth (the default)"
+        raise ParameterError(f"--nearer is used by {used}, which renders the occlusions")
+
+
+def _declare_order(args, lf):
+    """``--nearer`` put in ``lf.meta["nearer"]``, where every rendering of ``lf`` reads it
+    (:func:`~napari_lfalias.depth_guided.occlusion_order`)."""
+    if getattr(args, "nearer", None) is not None:
+        lf.meta["nearer"] = args.nearer
+
+
 def _start(args, stream, tags=(), method=None):
     """Check the outputs (``--out`` and its ``<name>_<tag>`` siblings), the options and ``--disparity``,
     then open the input.
@@ -165,9 +179,11 @@ def _start(args, stream, tags=(), method=None):
     check_outputs(outputs, args.overwrite, given_inputs(args))
     finite_float("slope", args.slope)
     given = _given_disparity(args, method)
+    _check_nearer(args, method)
     estimated = method in ("antialias", "depth") and given is None
     stages = Stages(3 + estimated, quiet=args.quiet, stream=stream)
     lf = open_lightfield(args, stages)
+    _declare_order(args, lf)
     if given is not None:
         return outputs, stages, lf, given.for_views(lf.image_shape)
     if estimated:
@@ -181,6 +197,11 @@ def _disparity_source(args):
     return str(args.disparity) if args.disparity is not None else "estimated"
 
 
+def _order_source(lf):
+    """What the metadata says of the occlusion order: ``--nearer``'s or the loader's, else "judged"."""
+    return lf.meta.get("nearer", "judged")
+
+
 def run_refocus(args, stream):
     """Refocus on one slope (``--antialias``: as a dense aperture records it) and write the image."""
     outputs, stages, lf, disparity = _start(args, stream, method="antialias" if args.antialias else "refocus")
@@ -190,7 +211,7 @@ def run_refocus(args, stream):
             from ..render import antialiased_refocus
 
             image = antialiased_refocus(lf, args.slope, disparity)
-            metadata.update(antialias=True, disparity=_disparity_source(args))
+            metadata.update(antialias=True, disparity=_disparity_source(args), nearer=_order_source(lf))
         else:
             from ..refocus import refocus
 
@@ -209,7 +230,7 @@ def _detection_start(args, stream, tags, options):
     outputs, stages, lf, disparity = _start(args, stream, tags, method=resolved["method"])
     metadata = {"slope": args.slope, **resolved}
     if resolved["method"] == "depth":
-        metadata["disparity"] = _disparity_source(args)
+        metadata.update(disparity=_disparity_source(args), nearer=_order_source(lf))
     return outputs, stages, lf, {**resolved, "disparity": disparity}, metadata
 
 

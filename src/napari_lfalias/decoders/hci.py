@@ -158,6 +158,8 @@ def hci_metadata(folder, grid_shape, image_shape):
     Returns
     -------
     meta : dict
+        ``"nearer"`` (``"smaller"``: which disparities are in front, the
+        rig's geometry; :func:`~napari_lfalias.depth_guided.occlusion_order`),
         ``"hci"`` (the parameters, when ``parameters.cfg`` exists),
         ``"disparity"`` ((Y, X) float32, the negated ground truth, when
         ``gt_disp_lowres.pfm`` exists) and ``"disparity_range"`` (from the
@@ -169,7 +171,9 @@ def hci_metadata(folder, grid_shape, image_shape):
         If a metadata file is unreadable or disagrees with the views.
     """
     folder = Path(folder)
-    meta = {}
+    # the HCI rig's geometry, in this package's sign: smaller disparities are nearer (antinous's ground
+    # truth judged so by the views at its depth edges, test_hci)
+    meta = {"nearer": "smaller"}
     cfg_path = folder / PARAMETERS_NAME
     if cfg_path.is_file():
         params = read_parameters_cfg(cfg_path)

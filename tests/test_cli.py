@@ -577,6 +577,12 @@ def test_info_reports_format_views_and_disparity(capsys, plane):
     status, out, _ = run(capsys, "info", path, "--json")
     facts = json.loads(out)
     assert facts["disparity"] == {"min": 1.0, "max": 1.0, "from": "metadata"}
+    assert facts["nearer"].startswith("judged")  # a plane's file declares no occlusion order
+
+
+def test_info_reports_the_occlusion_order_an_hci_folder_declares(capsys, lf_data):
+    status, out, _ = run(capsys, "info", lf_data / "hci_antinous", "--json")
+    assert status == 0 and json.loads(out)["nearer"] == "smaller disparities in front (declared)"
 
 
 def test_info_estimates_the_disparity_of_a_scene_without_metadata(capsys, tmp_path):

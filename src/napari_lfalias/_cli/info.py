@@ -90,6 +90,9 @@ def describe(path, white=None, dark=None, grid=None, nonfinite=None):
     if grid_facts is not None:
         facts["grid"] = grid_facts
     facts["disparity"] = _disparity_facts(lf)
+    declared = lf.meta.get("nearer")
+    facts["nearer"] = (f"{declared} disparities in front (declared)" if declared is not None else
+                       "judged from the views at the depth edges (not declared; refocus, detect, reduce --nearer)")
     return facts
 
 

@@ -172,7 +172,7 @@ def hci_metadata(folder, grid_shape, image_shape):
     """
     folder = Path(folder)
     # the HCI rig's geometry, in this package's sign: smaller disparities are nearer (antinous's ground
-    # truth judged so by the views at its depth edges, test_hci)
+    # truth judged so by the views at its depth edges: test_camera_array)
     meta = {"nearer": "smaller"}
     cfg_path = folder / PARAMETERS_NAME
     if cfg_path.is_file():

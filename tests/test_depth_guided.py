@@ -573,17 +573,27 @@ def test_an_occlusion_order_the_light_field_declares_overrides_the_views_judgeme
     assert _gain(lfa.reduce_aliasing(lf, slope, disparity=estimate).image, naive, reference) < -1
     declared = lfa.LightField(lf.data, lf.positions, {**lf.meta, "nearer": "larger"}, weights=lf.weights)
     assert DepthGuide(declared, estimate).larger_first(slope)
-    assert _gain(lfa.reduce_aliasing(declared, slope, disparity=estimate).image, naive, reference) > -0.1
+    image = lfa.reduce_aliasing(declared, slope, disparity=estimate).image
+    assert _gain(image, naive, reference) > -0.1
+    np.testing.assert_array_equal(lfa.reduce_aliasing(lf, slope, disparity=estimate, nearer="larger").image, image)
     assert DepthGuide(declared, estimate, nearer="smaller").nearer == "smaller"  # a parameter given wins
+    detector = lfa.AliasingDetector(lf, disparity=estimate, nearer="larger")
+    np.testing.assert_array_equal(lfa.reduce_aliasing(lf, slope, detector=detector).image, image)
+    with pytest.raises(ParameterError, match="nearer='smaller' differs from the detector's own"):
+        lfa.reduce_aliasing(lf, slope, detector=detector, nearer="smaller")
 
 
 def test_a_bad_declared_order_is_named():
     lf = lfa.LightField(np.zeros((3, 3, 8, 8), np.float32), meta={"nearer": "front"})
     with pytest.raises(ParameterError, match=r"lf.meta\['nearer'\]"):
         DepthGuide(lf, np.zeros((8, 8), np.float32))
+    plain = lfa.LightField(np.zeros((3, 3, 8, 8), np.float32))
     with pytest.raises(ParameterError, match="nearer"):
-        lfa.antialiased_refocus(lfa.LightField(np.zeros((3, 3, 8, 8), np.float32)), 0.0, np.zeros((8, 8)),
-                                nearer="closer")
+        lfa.antialiased_refocus(plain, 0.0, np.zeros((8, 8)), nearer="closer")
+    with pytest.raises(ParameterError, match="nearer"):
+        lfa.reduce_aliasing(plain, 0.0, nearer="closer")
+    with pytest.raises(ParameterError, match="nearer"):
+        lfa.detect_aliasing(plain, 0.0, nearer="closer")
 
 
 def test_a_surface_estimated_away_from_the_band_keeps_its_estimate_where_it_passes_an_alias(monkeypatch):

@@ -455,6 +455,14 @@ class AliasingDetector:
         Skip tiles whose Cv provably cannot exceed the threshold.
     tile : int
         Side of those tiles, in pixels.
+    disparity : ndarray (Y, X) or DisparityEstimate, optional
+        ``method="depth"``: a disparity you already have; estimated from
+        the light field on first use when not given.
+    nearer : {"auto", "larger", "smaller"}
+        ``method="depth"``: which disparities are in front where surfaces
+        occlude each other; ``"auto"``: the light field's
+        ``meta["nearer"]`` where it has one, else judged from the views
+        (:func:`~napari_lfalias.depth_guided.occlusion_order`).
 
     Notes
     -----
@@ -477,9 +485,12 @@ class AliasingDetector:
     """
 
     def __init__(self, lf, luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True, tile=TILE, *,
-                 disparity=None):
+                 disparity=None, nearer="auto"):
+        from .depth_guided import occlusion_order
+
         if not isinstance(lf, LightField):
             raise ParameterError(f"lf must be a napari_lfalias.LightField, got {type(lf).__name__}")
+        self.nearer = occlusion_order(lf, nearer)
         _validate.one_of("luminance", luminance, LUMINANCE_MODES)
         self.dark_floor = _validate.non_negative_float("dark_floor", dark_floor)
         self.skip_flat = _validate.boolean("skip_flat", skip_flat)
@@ -513,7 +524,7 @@ class AliasingDetector:
             if self._guide is None:
                 from .depth_guided import DepthGuide
 
-                self._guide = DepthGuide(self.lf, self._disparity)
+                self._guide = DepthGuide(self.lf, self._disparity, nearer=self.nearer)
             return self._guide
 
     # -- cached inputs -----------------------------------------------------------
@@ -809,7 +820,7 @@ class AliasingDetector:
 
 def detect_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, method=None, seed=None, *,
                     level=0, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR, skip_flat=True,
-                    disparity=None, preset=None):
+                    disparity=None, nearer="auto", preset=None):
     """Detect angular aliasing in the refocus of ``lf`` at ``slope`` (Algorithm 1).
 
     Parameters
@@ -825,9 +836,12 @@ def detect_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, meth
         Number of random sampling patterns ``N >= 2`` (Monte Carlo only).
     threshold : float
         ``T > 0``: a pixel is aliased where its Cv exceeds it.
-    method : {"analytic", "monte_carlo"}
-        The exact ``N -> infinity`` Cv (default), or the paper's estimate
-        from ``n_patterns`` random patterns.
+    method : {"depth", "analytic", "monte_carlo"}
+        ``"depth"`` (default): where the refocus differs from what a dense
+        aperture records, predicted from the light field's disparity
+        (:mod:`napari_lfalias.depth_guided`); ``"analytic"``: the exact
+        ``N -> infinity`` Cv; ``"monte_carlo"``: the paper's estimate from
+        ``n_patterns`` random patterns.
     seed : int, optional
         Seed of the Monte-Carlo patterns (same seed, same result).
     level : int
@@ -844,6 +858,11 @@ def detect_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, meth
         brightest luminance of ``lf``.
     skip_flat : bool
         Skip tiles that provably cannot exceed ``T``.
+    disparity, nearer
+        ``method="depth"``: as :class:`AliasingDetector`'s.
+    preset : {None, "paper"}
+        ``"paper"``: Xiao et al. (2014) as published
+        (:mod:`napari_lfalias.presets`); parameters given explicitly win.
 
     Returns
     -------
@@ -872,6 +891,6 @@ def detect_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, meth
     ((64, 64), True)
     """
     detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, skip_flat=skip_flat,
-                                disparity=disparity)
+                                disparity=disparity, nearer=nearer)
     return detector.detect(slope, gamma, n_patterns, threshold, method, seed,
                            level=level, threshold_scale=threshold_scale, preset=preset)

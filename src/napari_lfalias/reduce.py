@@ -59,6 +59,7 @@ from scipy import ndimage
 from . import _validate
 from .baselines import _disparity_map
 from .detect import DARK_FLOOR, AliasingDetector
+from .depth_guided import NEARER
 from .errors import ParameterError
 from .in_focus import in_focus_layer
 from .poisson import _labels, fuse_gradients
@@ -463,7 +464,8 @@ def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fract
 
 def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,
                     seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
-                    solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None, preset=None):
+                    solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None, nearer="auto",
+                    preset=None):
     """Refocus ``lf`` at ``slope`` with angular aliasing reduced.
 
     Two methods, chosen by ``method`` (or ``preset``):
@@ -512,6 +514,12 @@ def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_
     disparity : ndarray (Y, X) or DisparityEstimate, optional
         ``method="depth"``: a disparity you already have; estimated from
         the light field when not given (once per detector).
+    nearer : {"auto", "larger", "smaller"}
+        ``method="depth"``: which disparities are in front where surfaces
+        occlude each other; ``"auto"``: the light field's
+        ``meta["nearer"]`` where it has one, else judged from the views
+        (:func:`~napari_lfalias.depth_guided.occlusion_order`). With a
+        ``detector``, the detector's.
     preset : {None, "paper"}
         ``"paper"``: Xiao et al. (2014) as published
         (:mod:`napari_lfalias.presets`); parameters given explicitly win.
@@ -544,7 +552,7 @@ def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_
     steps = iter_reduce_aliasing(lf, slope, gamma, n_patterns, threshold, max_level, method, seed,
                                  threshold_scale=threshold_scale, luminance=luminance, dark_floor=dark_floor,
                                  solver=solver, screen=screen, keep_in_focus=keep_in_focus, detector=detector,
-                                 disparity=disparity, preset=preset)
+                                 disparity=disparity, nearer=nearer, preset=preset)
     while True:
         try:
             next(steps)
@@ -555,7 +563,7 @@ def reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_
 def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None, max_level=None, method=None,
                          seed=None, *, threshold_scale="cv", luminance="rec709", dark_floor=DARK_FLOOR,
                          solver="auto", screen=None, keep_in_focus=False, detector=None, disparity=None,
-                         preset=None):
+                         nearer="auto", preset=None):
     """:func:`reduce_aliasing` step by step: a generator for progress reports and cancellation.
 
     Yields ``(done, total)`` after each stage (``"depth"``: the disparity,
@@ -591,9 +599,13 @@ def iter_reduce_aliasing(lf, slope, gamma=None, n_patterns=None, threshold=None,
                                                    solver=solver, screen=screen, keep_in_focus=keep_in_focus)
     slope = _validate.finite_float("slope", slope)
     if detector is None:
-        detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, disparity=disparity)
+        detector = AliasingDetector(lf, luminance=luminance, dark_floor=dark_floor, disparity=disparity,
+                                    nearer=nearer)
     elif not isinstance(detector, AliasingDetector) or detector.source is not lf:
         raise ParameterError("detector must be an AliasingDetector made for this light field (lf)")
+    elif _validate.one_of("nearer", nearer, NEARER) not in ("auto", detector.nearer):
+        raise ParameterError(f"nearer={nearer!r} differs from the detector's own ({detector.nearer!r}): make the "
+                             "detector with it (AliasingDetector(lf, nearer=...))")
     lf = detector.lf
     if options["method"] == "depth":
         return (yield from _reduce_depth_guided(detector, slope, options["threshold"]))

@@ -50,6 +50,12 @@ def test_save_then_load_gives_back_the_light_field(tmp_path, weighted, suffix):
     assert back.meta["note"] == [1, 2] and back.meta["source"] == "plane"
 
 
+def test_a_declared_occlusion_order_is_saved_with_the_light_field(tmp_path, weighted):
+    declared = lfa.LightField(weighted.data, weighted.positions, {**weighted.meta, "nearer": "smaller"},
+                              weights=weighted.weights)
+    assert lfa.load(lfa.save(declared, tmp_path / "views.tif")).meta["nearer"] == "smaller"
+
+
 def test_a_saved_lenslet_decode_keeps_its_grid_model(tmp_path):
     guv = Path(__file__).resolve().parents[1] / "sample_data" / "guv"
     lf = lfa.load(guv / "Lightfield_GUVExperim1.tif", white=guv / "Radiometry_GUVExperim1.tif")

@@ -127,26 +127,25 @@ def _given_disparity(args, method):
     """
     if args.disparity is None:
         return None
-    if method == "refocus":
-        raise ParameterError("--disparity is used by --antialias (the plain refocus needs no disparity)")
-    if method not in ("antialias", "depth"):
-        chosen = f"--method {method}" if args.method is not None else f"--preset {args.preset} (method {method})"
-        raise ParameterError(f"--disparity is used by --method depth (the default); {chosen} detects from "
-                             "the views alone")
+    _refuse_unless_rendered("--disparity", args, method)
     return read_disparity(args.disparity)
 
 
-def _check_nearer(args, method):
-    """``--nearer`` only where a disparity is rendered (as ``--disparity``), before anything is decoded."""
-    if getattr(args, "nearer", None) is not None and method not in ("antialias", "depth"):
-        used = "--antialias" if method == "refocus" else "--method depth (the default)"
-        raise ParameterError(f"--nearer is used by {used}, which renders the occlusions")
+def _refuse_unless_rendered(option, args, method):
+    """A ParameterError naming ``option`` where ``method`` renders no disparity (a plain refocus, a Cv
+    method), before anything is decoded."""
+    if method == "refocus":
+        raise ParameterError(f"{option} is used by --antialias (the plain refocus renders no disparity)")
+    if method not in ("antialias", "depth"):
+        chosen = f"--method {method}" if args.method is not None else f"--preset {args.preset} (method {method})"
+        raise ParameterError(f"{option} is used by --method depth (the default); {chosen} detects from "
+                             "the views alone")
 
 
 def _declare_order(args, lf):
     """``--nearer`` put in ``lf.meta["nearer"]``, where every rendering of ``lf`` reads it
     (:func:`~napari_lfalias.depth_guided.occlusion_order`)."""
-    if getattr(args, "nearer", None) is not None:
+    if args.nearer is not None:
         lf.meta["nearer"] = args.nearer
 
 
@@ -179,7 +178,8 @@ def _start(args, stream, tags=(), method=None):
     check_outputs(outputs, args.overwrite, given_inputs(args))
     finite_float("slope", args.slope)
     given = _given_disparity(args, method)
-    _check_nearer(args, method)
+    if args.nearer is not None:
+        _refuse_unless_rendered("--nearer", args, method)
     estimated = method in ("antialias", "depth") and given is None
     stages = Stages(3 + estimated, quiet=args.quiet, stream=stream)
     lf = open_lightfield(args, stages)

@@ -583,6 +583,27 @@ def test_an_occlusion_order_the_light_field_declares_overrides_the_views_judgeme
         lfa.reduce_aliasing(lf, slope, detector=detector, nearer="smaller")
 
 
+def test_a_detector_takes_another_occlusion_order_and_keeps_its_disparity():
+    """``AliasingDetector.use_nearer`` (the napari widget's order control): the reductions of the order
+    chosen, from the disparity handed over once."""
+    from napari_lfalias.synthetic import brick_room
+
+    lf = brick_room(n_views=5, size=96, seed=0).lightfield
+    estimate = lfa.estimate_disparity(lf)
+    detector = lfa.AliasingDetector(lf, disparity=estimate)
+    default = lfa.reduce_aliasing(lf, 4.0, detector=detector).image
+    detector.use_nearer("smaller")
+    assert detector.nearer == "smaller"
+    smaller = lfa.reduce_aliasing(lf, 4.0, detector=detector, nearer="smaller").image
+    np.testing.assert_array_equal(smaller, lfa.reduce_aliasing(lf, 4.0, disparity=estimate, nearer="smaller").image)
+    assert not np.array_equal(smaller, default)
+    detector.use_nearer("auto")
+    np.testing.assert_array_equal(lfa.reduce_aliasing(lf, 4.0, detector=detector).image, default)
+    assert detector.guide._given is estimate  # never estimated again
+    with pytest.raises(ParameterError, match="nearer"):
+        detector.use_nearer("front")
+
+
 def test_a_bad_declared_order_is_named():
     lf = lfa.LightField(np.zeros((3, 3, 8, 8), np.float32), meta={"nearer": "front"})
     with pytest.raises(ParameterError, match=r"lf.meta\['nearer'\]"):

@@ -257,6 +257,51 @@ def test_reduce_with_the_depth_method_is_the_apis_reduction_and_follows_the_focu
     assert widget.shutdown()
 
 
+def test_the_occlusion_order_chosen_is_the_apis_nearer(make_napari_viewer, qtbot):
+    from napari_lfalias.synthetic import brick_room
+
+    viewer = make_napari_viewer()
+    scene = brick_room(n_views=5, size=96, seed=0)  # the cube (+4) in front of the wall (-4)
+    lf = scene.lightfield
+    _add(viewer, lf, name="room")
+    widget = _open_widget(viewer, qtbot)
+    assert widget.nearer == "auto" and widget.order_combo.currentText() == "judged from the views"
+    widget.focus_slider.setValue(4.0)
+    _disparity_layer(qtbot, viewer)
+    _idle(qtbot, widget)
+    estimate = lfa.estimate_disparity(lf)
+    results = {}
+    for nearer in ("smaller", "auto"):  # the wrong order, then the one judged from the views
+        widget.set_nearer(nearer)
+        widget.reduce()
+        fused = _wait_for(qtbot, viewer, "fused", slope=4.0, nearer=nearer)
+        _idle(qtbot, widget)
+        expected = lfa.reduce_aliasing(lf, 4.0, disparity=estimate, nearer=nearer)
+        np.testing.assert_array_equal(fused.data, expected.image)
+        antialiased = find_output_layer(viewer, "antialiased")
+        assert antialiased.metadata["lfalias_params"]["nearer"] == nearer
+        np.testing.assert_array_equal(antialiased.data, lfa.antialiased_refocus(lf, 4.0, estimate, nearer=nearer))
+        results[nearer] = fused.data.copy()
+    assert not np.array_equal(results["smaller"], results["auto"])  # the choice reached the rendering
+    reference = scene.reference(4.0)
+    assert np.abs(results["auto"] - reference).mean() < np.abs(results["smaller"] - reference).mean()
+    # only the dense-aperture method renders by depth
+    widget.set_method("analytic")
+    assert not widget.order_combo.isEnabled()
+    widget.set_method("depth")
+    assert widget.order_combo.isEnabled()
+    # a light field that declares its order: "auto" says so, and a new light field is back at "auto"
+    widget.set_nearer("larger")
+    declared = lfa.LightField(lf.data, lf.positions, meta={**lf.meta, "nearer": "smaller"})
+    _add(viewer, declared, name="declared")
+    widget.layer_combo.setCurrentIndex(widget.layer_combo.findText("declared"))
+    assert widget.source == "declared"
+    assert widget.nearer == "auto"
+    assert widget.order_combo.currentText() == "as the light field declares (smaller in front)"
+    _idle(qtbot, widget)
+    assert widget.shutdown()
+
+
 def test_the_depth_layout_on_screen(make_napari_viewer, qtbot):
     viewer = make_napari_viewer(show=True)
     lf = _scene(n_views=5, size=96)

@@ -737,15 +737,15 @@ def test_the_controls_show_the_librarys_defaults(make_napari_viewer, qtbot, monk
 
     # a change of the library's defaults reaches the widget (nothing is copied)
     def changed(lf, slope, gamma=0.3, n_patterns=50, threshold=0.004, max_level=2, method="analytic",
-                seed=None, *, keep_in_focus=True):
+                seed=None, *, keep_in_focus=True, nearer="larger"):
         raise AssertionError("not called")
 
     monkeypatch.setattr(reduce_module, "reduce_aliasing", changed)
     assert DetectionParams().threshold == 0.004 and DetectionParams().max_level == 2
     other = AliasingWidget(viewer)
     params = other.params()
-    assert (params.gamma, params.n_patterns, params.threshold, params.max_level, params.keep_in_focus) == (
-        0.3, 50, pytest.approx(0.004), 2, True)
+    assert (params.gamma, params.n_patterns, params.threshold, params.max_level, params.keep_in_focus,
+            params.nearer) == (0.3, 50, pytest.approx(0.004), 2, True, "larger")
     assert other.shutdown()
 
 

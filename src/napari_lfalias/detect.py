@@ -516,6 +516,29 @@ class AliasingDetector:
             self._disparity = disparity
             self._guide = None
 
+    def use_nearer(self, nearer):
+        """Render ``method="depth"`` with the occlusion order ``nearer`` from now on.
+
+        ``nearer`` is as for the constructor (``"auto"``: the light field's
+        ``meta["nearer"]`` where it has one, else judged from the views).
+        The disparity is kept; the renderings of the other order are dropped.
+
+        Examples
+        --------
+        >>> from napari_lfalias.synthetic import brick_room
+        >>> detector = AliasingDetector(brick_room(n_views=3, size=32).lightfield)
+        >>> detector.use_nearer("smaller")
+        >>> detector.nearer
+        'smaller'
+        """
+        from .depth_guided import occlusion_order
+
+        nearer = occlusion_order(self.source, nearer)
+        with self._lock:
+            if nearer != self.nearer:
+                self.nearer = nearer
+                self._guide = None
+
     @property
     def guide(self):
         """The :class:`~napari_lfalias.depth_guided.DepthGuide` of the light field (disparity estimated

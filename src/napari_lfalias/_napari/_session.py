@@ -138,7 +138,7 @@ def _pause(seconds, step, until=None, longest_s=1.0):
 
 
 #: Parameters of ``reduce_aliasing`` the widget has controls for (their defaults are the library's).
-LIBRARY_PARAMETERS = ("gamma", "n_patterns", "threshold", "method", "max_level", "keep_in_focus")
+LIBRARY_PARAMETERS = ("gamma", "n_patterns", "threshold", "method", "max_level", "keep_in_focus", "nearer")
 #: The widget's seed: the library's default (``None``) draws new patterns on every call, which a
 #: spin box cannot show; seed 0 makes the widget repeat the API's ``seed=0`` result.
 WIDGET_SEED = 0
@@ -152,7 +152,7 @@ def library_defaults():
     Examples
     --------
     >>> sorted(library_defaults())
-    ['gamma', 'keep_in_focus', 'max_level', 'method', 'n_patterns', 'threshold']
+    ['gamma', 'keep_in_focus', 'max_level', 'method', 'n_patterns', 'nearer', 'threshold']
     """
     import inspect
 
@@ -181,7 +181,7 @@ class DetectionParams:
     --------
     >>> params = DetectionParams(method="depth", threshold=0.02)
     >>> params.live_method, params.reduce_kwargs()
-    ('analytic', {'threshold': 0.02, 'method': 'depth'})
+    ('analytic', {'threshold': 0.02, 'method': 'depth', 'nearer': 'auto'})
     """
 
     gamma: float = _library_default("gamma")
@@ -191,6 +191,7 @@ class DetectionParams:
     seed: int = WIDGET_SEED
     max_level: int = _library_default("max_level")
     keep_in_focus: bool = _library_default("keep_in_focus")
+    nearer: str = _library_default("nearer")
 
     @property
     def live_method(self):
@@ -214,7 +215,7 @@ class DetectionParams:
         """Keyword arguments of ``reduce_aliasing``: those its ``method`` uses (the disparity comes apart)."""
         if self.method in CV_METHODS:
             return {**self.detect_kwargs(), "max_level": self.max_level, "keep_in_focus": self.keep_in_focus}
-        return {"threshold": self.threshold, "method": self.method}
+        return {"threshold": self.threshold, "method": self.method, "nearer": self.nearer}
 
     def detection_key(self, slope):
         """What a live Cv depends on (everything but the threshold and the pyramid depth)."""
@@ -561,6 +562,7 @@ class AliasingSession:
         guided = params.method not in CV_METHODS
         if guided:
             estimate = yield from self._disparity_of(detector)
+            yield from self._locked((0, 2), lambda: detector.use_nearer(params.nearer))
         # the core's own steps: progress per stage, and a quit() takes effect between two of them
         stages = iter_reduce_aliasing(detector.source, slope, detector=detector, **params.reduce_kwargs())
         if not guided:
@@ -568,7 +570,7 @@ class AliasingSession:
         reduction = yield from self._stepwise(_one_more_stage(stages), (0, 2))
         yield Partial(Reduced(reduction))
         # needs only the views: the detector stays free for focus changes
-        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate))
+        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate, nearer=params.nearer))
 
     def _stepwise(self, stages, waiting):
         """Run the generator ``stages`` one step at a time under the lock, free between steps.

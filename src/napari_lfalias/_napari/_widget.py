@@ -76,10 +76,12 @@ from ._layers import (
 from ._session import CV_METHODS, AliasingSession, DetectionParams, Preview, focus_range
 from ._wording import (
     METHODS,
+    ORDERS,
     TOOLTIPS,
     disparity_summary,
     level_legend,
     mask_description,
+    order_text,
     stage_text,
     threshold_meaning,
 )
@@ -164,6 +166,11 @@ class AliasingWidget(QWidget):
         for text, method in METHODS.items():
             self.method_combo.addItem(text, method)
         self.method_combo.setCurrentIndex(self.method_combo.findData(defaults.method))
+        self.order_combo = QComboBox()
+        self.order_combo.addItem(order_text(None), "auto")
+        for text, nearer in ORDERS.items():
+            self.order_combo.addItem(text, nearer)
+        self.order_combo.setCurrentIndex(self.order_combo.findData(defaults.nearer))
         self.mask_source = QLabel("")
         self.disparity_state = QLabel("not estimated")
         self.level_spin = QSpinBox()
@@ -199,7 +206,7 @@ class AliasingWidget(QWidget):
             (self.layer_combo, "layer"), (self.focus_slider, "focus"), (self.depth_label, "depth"),
             (self.gamma_spin, "gamma"),
             (self.n_spin, "n"), (self.threshold_slider, "threshold"), (self.threshold_hint, "threshold"),
-            (self.method_combo, "method"), (self.level_spin, "level"), (self.seed_spin, "seed"),
+            (self.method_combo, "method"), (self.order_combo, "nearer"), (self.level_spin, "level"), (self.seed_spin, "seed"),
             (self.mask_source, "mask"), (self.disparity_state, "disparity"),
             (self.keep_check, "keep"), (self.live_check, "live"), (self.update_button, "detect"),
             (self.reduce_button, "reduce"), (self.cancel_button, "cancel"), (self.beside_check, "beside"),
@@ -215,6 +222,7 @@ class AliasingWidget(QWidget):
         form.addRow("threshold T", self.threshold_slider)
         form.addRow("", self.threshold_hint)
         form.addRow("method", self.method_combo)
+        form.addRow("in front", self.order_combo)
         form.addRow("mask shows", self.mask_source)
         form.addRow("disparity", self.disparity_state)
         form.addRow("patterns N", self.n_spin)
@@ -246,6 +254,7 @@ class AliasingWidget(QWidget):
         for spin in (self.n_spin, self.seed_spin):  # what only Monte Carlo uses
             spin.valueChanged.connect(self._on_sampling_params)
         self.level_spin.valueChanged.connect(self._on_reduction_params)
+        self.order_combo.currentIndexChanged.connect(self._on_reduction_params)
         self.keep_check.toggled.connect(self._on_reduction_params)
         self.beside_check.toggled.connect(self._place_outputs)
         self.live_check.toggled.connect(self._on_live)
@@ -315,6 +324,7 @@ class AliasingWidget(QWidget):
         self.source = layer.name
         self._source_layer = layer
         self._first_result = True
+        self._show_declared_order(lf)
         low, high = focus_range(lf)
         self.focus_slider.blockSignals(True)
         self.focus_slider.setRange(low, high)
@@ -345,6 +355,15 @@ class AliasingWidget(QWidget):
         """Choose the method by the library's name (``"depth"``, ``"analytic"`` or ``"monte_carlo"``)."""
         self.method_combo.setCurrentIndex(self.method_combo.findData(method))
 
+    @property
+    def nearer(self):
+        """The occlusion order chosen, by the library's name (``"auto"``, ``"larger"`` or ``"smaller"``)."""
+        return self.order_combo.currentData()
+
+    def set_nearer(self, nearer):
+        """Choose the occlusion order by the library's name (``"auto"``, ``"larger"`` or ``"smaller"``)."""
+        self.order_combo.setCurrentIndex(self.order_combo.findData(nearer))
+
     def params(self):
         """The detection parameters the controls show."""
         return DetectionParams(
@@ -355,6 +374,7 @@ class AliasingWidget(QWidget):
             seed=int(self.seed_spin.value()),
             max_level=int(self.level_spin.value()),
             keep_in_focus=self.keep_check.isChecked(),
+            nearer=self.nearer,
         )
 
     def _show_depth(self):
@@ -362,6 +382,14 @@ class AliasingWidget(QWidget):
         text = depth_label(self.session.source_lf, self.slope) if self.session is not None else ""
         self.depth_label.setText(text)
         self.depth_label.setVisible(bool(text))
+
+    def _show_declared_order(self, lf):
+        """Back to ``"auto"`` for a new light field (an order is its camera's), saying what that means for it."""
+        declared = lf.meta.get("nearer")
+        self.order_combo.blockSignals(True)
+        self.order_combo.setItemText(0, order_text(declared if declared in ORDERS.values() else None))
+        self.order_combo.setCurrentIndex(0)
+        self.order_combo.blockSignals(False)
 
     def _show_threshold_meaning(self):
         """What T means for this light field (:func:`~._wording.threshold_meaning`)."""
@@ -383,6 +411,7 @@ class AliasingWidget(QWidget):
             spin.setEnabled(monte_carlo)
         for control in (self.level_spin, self.keep_check):
             control.setEnabled(self.method in CV_METHODS)
+        self.order_combo.setEnabled(self.method not in CV_METHODS)
 
     # -- reactions to the controls --------------------------------------------------
     def _on_focus(self, _value=None):

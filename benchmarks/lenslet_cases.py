@@ -10,6 +10,14 @@ noise, a Bayer mosaic or a grey sensor), writes them as 16-bit TIFFs and
 loads them as a user does, ``lfa.load(raw, white=..., dark=...)``: the
 views the methods see are what the decoder makes of the capture.
 
+The nearer layer has the smaller disparity, as in every plenoptic camera
+(``decoders/lenslet.py``, module notes; ``tests/test_lenslet_optics.py``
+traces it), and the decoder declares that order (``meta["nearer"]``).
+Before stop 47 four of the five cases put the larger disparity in front, an
+order no such camera records; they were mirrored in depth (every disparity
+and slope negated), which moved their results by less than 1 dB
+(``results/accuracy.md``, stop 47 notes).
+
 Ground truth in the decoded geometry
 ------------------------------------
 The forward model uses ``scale=1``: a decoded pixel is one scene pixel, and
@@ -218,13 +226,13 @@ def lenslet_cases(size=256):
     return [
         # -- chosen on --------------------------------------------------------------------------
         capture_case("lenslet rect 9x9, Bayer: grey noise over bricks", "tune",
-                     [(1.0, "grey", (0.25, 0.7, 0.3, 0.75)), (-1.0, "bricks", None)], [1.0, 4.0, -4.5],
+                     [(-1.0, "grey", (0.25, 0.7, 0.3, 0.75)), (1.0, "bricks", None)], [-1.0, -4.0, 4.5],
                      kind="rectangular", pitch=9.4, rotation=-0.3, bayer="RGGB", noise=0.003, vignetting=0.4,
                      seed=31, notes="rectangular grid, RGGB, noise, vignetting 0.4", **common),
         # -- holdout: never used to choose -------------------------------------------------------
         capture_case("lenslet hex 11x11, Bayer: tiles, lines, bricks", "holdout",
-                     [(1.5, "tiles", (0.15, 0.5, 0.15, 0.55)), (0.0, "lines", (0.5, 0.85, 0.45, 0.85)),
-                      (-1.0, "bricks", None)], [0.0, 5.0, -4.0], kind="hexagonal", pitch=11.3, rotation=0.4,
+                     [(-1.5, "tiles", (0.15, 0.5, 0.15, 0.55)), (0.0, "lines", (0.5, 0.85, 0.45, 0.85)),
+                      (1.0, "bricks", None)], [0.0, -5.0, 4.0], kind="hexagonal", pitch=11.3, rotation=0.4,
                      bayer="RGGB", noise=0.003, vignetting=0.5, seed=32,
                      notes="Illum-like hexagonal grid (11x11 views, 97 inside the disc), RGGB, noise, "
                            "vignetting 0.5", **common),
@@ -233,11 +241,11 @@ def lenslet_cases(size=256):
                      kind="rectangular", pitch=7.6, rotation=0.6, noise=0.004, vignetting=0.35, seed=33,
                      notes="small pitch (7x7 views, 45 inside the disc), grey sensor, noise", **common),
         capture_case("lenslet hex 9x9, grey: noise over lines", "holdout",
-                     [(1.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-1.0, "lines", None)], [-1.0, 5.0, -4.0],
+                     [(-1.0, "noise", (0.3, 0.7, 0.3, 0.7)), (1.0, "lines", None)], [1.0, -5.0, 4.0],
                      kind="hexagonal", pitch=9.9, rotation=-0.7, noise=0.002, vignetting=0.5, seed=34,
                      notes="hexagonal grid, grey sensor, a line-textured wall behind", **common),
         capture_case("lenslet rect 11x11, Bayer, deep: bricks over grey noise", "holdout",
-                     [(2.5, "bricks", (0.25, 0.75, 0.2, 0.7)), (-2.5, "grey", None)], [2.5, -2.5],
+                     [(-2.5, "bricks", (0.25, 0.75, 0.2, 0.7)), (2.5, "grey", None)], [-2.5, 2.5],
                      kind="rectangular", pitch=10.3, rotation=0.2, bayer="GRBG", noise=0.003, vignetting=0.4,
                      seed=35, notes="5 px per view between the layers: the decoder blurs whichever is in focus",
                      **common),

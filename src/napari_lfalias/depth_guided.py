@@ -342,8 +342,8 @@ def occlusion_order(lf, nearer="auto"):
 
     Which side of a depth edge is in front is a property of the camera:
     the sign of its disparities against its view positions. A loader that
-    knows the camera says so in ``meta["nearer"]`` (the HCI loader:
-    ``"smaller"``), and a user who knows it may set it, or pass
+    knows the camera says so in ``meta["nearer"]`` (the HCI loader
+    and the lenslet decoder: ``"smaller"``), and a user who knows it may set it, or pass
     ``nearer``; otherwise it stays ``"auto"`` and is judged from the views
     at the depth edges (:meth:`DepthGuide.larger_first`), which the views
     cannot always tell (``benchmarks/results/accuracy.md``: wrong on 8 of

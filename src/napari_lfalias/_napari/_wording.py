@@ -75,8 +75,8 @@ TOOLTIPS = {
                  "between two of them (Reduce aliasing starts it again). Shown in the hidden layer "
                  "'disparity [...]' (colormap and colorbar).",
     "nearer": "Dense-aperture method only: which surface is in front where one hides another, by its "
-              "disparity. A light field whose source knows its camera declares it (an HCI folder: "
-              "smaller in front; lf.meta['nearer'] in Python); otherwise it is judged from the views at "
+              "disparity. A light field whose source knows its camera declares it (an HCI folder or "
+              "a lenslet capture: smaller in front; lf.meta['nearer'] in Python); otherwise it is judged from the views at "
               "the depth edges, which they cannot always tell (wrong on 8 of 320 random scenes, "
               "benchmarks/results/accuracy.md). Where you know your camera's order, choose it: a wrong "
               "order blurs the in-focus surface along a defocused occluder's outline.",

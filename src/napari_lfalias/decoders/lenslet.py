@@ -40,6 +40,19 @@ more negative, as in a camera array), and ``refocus(lf, d)`` brings the
 points of disparity ``d`` into focus. The synthetic round trip
 (``tests/test_lenslet_roundtrip.py``) checks the sign with a scene of known
 disparity.
+
+So a decoded light field declares its occlusion order,
+``meta["nearer"] = "smaller"`` (:func:`~napari_lfalias.depth_guided.occlusion_order`),
+and every rendering of it puts the smaller disparity in front. This holds
+for every plenoptic camera whose microlenses sit at the main lens' image
+plane, whatever way its sensor is read out: a point nearer than the plane
+in focus converges behind the microlenses, so the ray from aperture
+position ``a`` crosses them ``k a`` from where the central ray does
+(``k > 0``), while the microlens images aperture position ``a`` at pixel
+offset ``-c a`` (``c > 0``: a lens inverts). The point therefore moves
+``-(k / c)`` times the offset: ``d < 0``. A rotation or mirror of the
+sensor's readout turns the move and the offset alike, so their ratio keeps
+its sign.
 """
 
 from __future__ import annotations
@@ -216,6 +229,7 @@ def decode_steps(raw, white=None, dark=None, grid=None, *, bayer=None, n_views=N
         "grid": model,
         "view_step_px": 1.0,
         "lens_window": lens_window,
+        "nearer": "smaller",  # the optics' order (module notes)
         "white": None if white_image is None else white_image.label(),
         "dark": None if dark_image is None else dark_image.label(),
     }
@@ -280,7 +294,8 @@ def decode_lenslet(raw, white=None, dark=None, grid=None, *, bayer=None, n_views
         module notes; ``meta["grid"]`` is the GridModel, ``meta["view_step_px"]``
         the pixels between views, ``meta["lens_window"]`` the rows and
         columns of the grid's output kept by ``trim``, ``meta["white_choice"]``
-        the white image chosen from a folder and its settings.
+        the white image chosen from a folder and its settings,
+        ``meta["nearer"]`` the occlusion order, ``"smaller"`` (module notes).
 
     Raises
     ------

@@ -197,6 +197,37 @@ def test_cli_batch_on_a_given_scheduler(client, tmp_path, capsys):
                                       io_write.read_lightfield(path).data)
 
 
+def test_cli_batch_reduces_with_the_options_of_reduce_and_a_declared_occlusion_order(client, tmp_path, capsys):
+    import tifffile
+
+    import napari_lfalias as lfa
+    from napari_lfalias.synthetic import brick_room
+
+    lf = brick_room(n_views=3, size=48, seed=0).lightfield  # the cube (+4) before the wall (-4)
+    path = tmp_path / "room.tif"
+    io_write.write_lightfield(path, lf)
+    base = ["batch", str(path), "--task", "reduce", "--slope", "4", "--scheduler", client.scheduler.address, "-q"]
+    images = {}
+    for nearer in ("smaller", "larger"):
+        out = tmp_path / nearer
+        assert main(base + ["--out", str(out), "--nearer", nearer]) == 0
+        images[nearer] = tifffile.imread(out / "room_reduced.tif")
+        assert tifffile.TiffFile(out / "room_reduced.tif").shaped_metadata[0]["nearer"] == nearer
+        np.testing.assert_array_equal(images[nearer], lfa.reduce_aliasing(lf, 4.0, nearer=nearer).image)
+    assert not np.array_equal(images["smaller"], images["larger"])
+    # the paper's algorithm, as docs/cli.md runs it
+    assert main(base + ["--out", str(tmp_path / "paper"), "--preset", "paper", "--seed", "0"]) == 0
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "paper" / "room_reduced.tif"),
+                                  lfa.reduce_aliasing(lf, 4.0, preset="paper", seed=0).image)
+    capsys.readouterr()
+    for extra, words in ((["--task", "convert"], "--task reduce"), (["--task", "reduce", "--method", "analytic"], "--method depth")):
+        argv = ["batch", str(path), "--slope", "4", "--out", str(tmp_path / "x"), "--nearer", "larger", *extra]
+        assert main(argv) != 0
+        err = capsys.readouterr().err
+        assert "--nearer is used by" in err and words in err and "Traceback" not in err
+        assert not (tmp_path / "x").exists()
+
+
 def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, capsys):
     inputs = write_inputs(tmp_path / "in", 2)
     bad = tmp_path / "in" / "broken.tif"
@@ -221,6 +252,7 @@ def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, c
         ({"task": "reduce", "slope": 0.0, "solver": "magic"}, "solver"),
         ({"task": "reduce", "slope": 0.0, "colour": "red"}, "colour"),
         ({"task": "convert", "slope": 0.5}, "task='reduce' only"),
+        ({"task": "reduce", "slope": 0.0, "nearer": "front"}, "nearer"),
     ],
 )
 def test_plan_rejects_bad_batches(tmp_path, kwargs, match):

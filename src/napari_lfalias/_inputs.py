@@ -167,6 +167,10 @@ def check_reduce_options(slope, **options):
         _validate.one_of("luminance", options.pop("luminance"), LUMINANCE_MODES)
     if "dark_floor" in options:
         _validate.non_negative_float("dark_floor", options.pop("dark_floor"))
+    if "nearer" in options:
+        from .depth_guided import NEARER
+
+        _validate.one_of("nearer", options.pop("nearer"), NEARER)
     unknown = sorted(set(options) - _REDUCE_OPTIONS)
     if unknown:
         raise ParameterError(f"unknown option(s) {', '.join(unknown)} of a reduction; known: "

@@ -55,7 +55,7 @@ __all__ = ["TASKS", "REDUCE_OPTIONS", "Job", "BatchReport", "plan_batch", "run_j
 TASKS = ("convert", "reduce")
 #: Keyword options of :func:`~napari_lfalias.reduce_aliasing` a reduction batch passes on.
 REDUCE_OPTIONS = ("gamma", "n_patterns", "threshold", "threshold_scale", "method", "seed", "max_level", "solver",
-                  "keep_in_focus")
+                  "keep_in_focus", "nearer", "preset")
 MARKER_DIR = ".lfalias-batch"
 
 

@@ -188,6 +188,10 @@ def _add_disparity(parser, used_by):
         help=f"{used_by}: the disparity TIFF written by `lfalias depth` from the same input (its confidence "
         "beside it is read too) instead of estimating it again",
     )
+    _add_nearer(parser, used_by)
+
+
+def _add_nearer(parser, used_by):
     parser.add_argument(
         "--nearer", choices=NEARER, default=None,
         help=f"{used_by}: which disparities are in front where surfaces occlude each other, if you know your "
@@ -318,6 +322,7 @@ def build_parser():
     _add_slope(sub, required=False)
     add_detection_options(sub)
     _add_reduction_options(sub)
+    _add_nearer(sub, "--task reduce with --method depth (the default)")
     return parser
 
 

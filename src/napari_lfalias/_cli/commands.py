@@ -127,11 +127,11 @@ def _given_disparity(args, method):
     """
     if args.disparity is None:
         return None
-    _refuse_unless_rendered("--disparity", args, method)
+    refuse_unless_rendered("--disparity", args, method)
     return read_disparity(args.disparity)
 
 
-def _refuse_unless_rendered(option, args, method):
+def refuse_unless_rendered(option, args, method):
     """A ParameterError naming ``option`` where ``method`` renders no disparity (a plain refocus, a Cv
     method), before anything is decoded."""
     if method == "refocus":
@@ -179,7 +179,7 @@ def _start(args, stream, tags=(), method=None):
     finite_float("slope", args.slope)
     given = _given_disparity(args, method)
     if args.nearer is not None:
-        _refuse_unless_rendered("--nearer", args, method)
+        refuse_unless_rendered("--nearer", args, method)
     estimated = method in ("antialias", "depth") and given is None
     stages = Stages(3 + estimated, quiet=args.quiet, stream=stream)
     lf = open_lightfield(args, stages)

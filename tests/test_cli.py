@@ -605,6 +605,27 @@ def test_info_on_a_plain_image_asks_for_a_white_image(capsys, tmp_path):
     assert "--white" in out and "20 x 30" in out
 
 
+def test_info_on_a_processed_lytro_picture_says_it_has_no_raw_image(capsys, lf_data):
+    path = lf_data / "lytro_lfp_processed_samples" / "IMG_0001-stk.lfp"
+    status, _, err = run(capsys, "info", path)
+    assert status == 1
+    assert_one_line_error(err, "IMG_0001-stk.lfp", "processed Lytro picture", "raw")
+
+
+def test_info_describes_a_lytro_raw_file(capsys, tmp_path):
+    from test_sensor import _pack_f01
+
+    (tmp_path / "IMG_0007.raw").write_bytes(_pack_f01(np.full((3280, 3280), 1000, np.uint16)))
+    meta = {"image": {"rawDetails": {"mosaic": {"tile": "r,gr:gb,b", "upperLeftPixel": "b"},
+                                     "pixelFormat": {"black": dict.fromkeys(("r", "gr", "gb", "b"), 168),
+                                                     "white": dict.fromkeys(("r", "gr", "gb", "b"), 4095)}}}}
+    (tmp_path / "IMG_0007.json").write_text(json.dumps(meta))
+    status, out, _ = run(capsys, "info", tmp_path / "IMG_0007.raw", "--json")
+    facts = json.loads(out)
+    assert status == 0 and "--white" in facts["format"]
+    assert facts["image_shape"] == [3280, 3280] and facts["bayer"] == "BGGR"
+
+
 # -- the console script ------------------------------------------------------------
 
 

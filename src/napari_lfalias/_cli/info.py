@@ -18,11 +18,15 @@ def _image_facts(path):
     """Shape and dtype of a plain image file, without decoding it as a light field.
 
     A view-image file is decoded (within the memory budget), so that a
-    truncated or damaged one is named here rather than described.
+    truncated or damaged one is named here rather than described. What
+    imageio cannot describe (a Lytro container, a camera raw) is read as a
+    lenslet sensor image, whose reader says what is wrong with it (a
+    processed Lytro picture has no raw image).
     """
     import imageio.v3 as iio
 
     from ..decoders.images import decode_image, is_image_file
+    from ..decoders.sensor import read_sensor
 
     if is_image_file(path):
         pixels = decode_image(path)
@@ -30,8 +34,9 @@ def _image_facts(path):
         return {"image_shape": list(shape), "dtype": str(pixels.dtype)}
     try:
         props = iio.improps(path)
-    except Exception as exc:  # noqa: BLE001 - imageio raises many kinds for unreadable files
-        raise DecodeError(f"{path}: not a readable image or light field ({exc.__class__.__name__})") from exc
+    except Exception:  # noqa: BLE001 - imageio raises many kinds for unreadable files
+        sensor = read_sensor(path)
+        return {"image_shape": list(sensor.shape), "dtype": str(np.asarray(sensor).dtype), "bayer": sensor.bayer}
     return {"image_shape": list(props.shape), "dtype": str(props.dtype)}
 
 

@@ -260,6 +260,20 @@ def test_reduction_runs_in_a_worker_while_events_are_processed(make_napari_viewe
     assert widget.shutdown()
 
 
+def test_monte_carlo_at_the_default_controls_reduces_as_the_paper(scene_viewer, qtbot):
+    viewer, widget, lf = scene_viewer
+    widget.set_method("monte_carlo")
+    widget.focus_slider.setValue(4.0)
+    _idle(qtbot, widget)
+    widget.reduce()
+    fused = _wait_for(qtbot, viewer, "fused", slope=4.0, method="monte_carlo")
+    _idle(qtbot, widget)
+    paper = lfa.reduce_aliasing(lf, 4.0, preset="paper", seed=widget.params().seed)
+    np.testing.assert_array_equal(fused.data, paper.image)
+    screened = lfa.reduce_aliasing(lf, 4.0, method="monte_carlo", seed=widget.params().seed)
+    assert not np.array_equal(fused.data, screened.image)  # the project's screened fusion differs
+
+
 def test_keep_in_focus_box_gives_the_api_reduction(scene_viewer, qtbot):
     viewer, widget, lf = scene_viewer
     widget.set_method("analytic")  # the box belongs to Algorithm 2

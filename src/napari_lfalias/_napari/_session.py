@@ -212,9 +212,17 @@ class DetectionParams:
         }
 
     def reduce_kwargs(self):
-        """Keyword arguments of ``reduce_aliasing``: those its ``method`` uses (the disparity comes apart)."""
+        """Keyword arguments of ``reduce_aliasing``: those its ``method`` uses (the disparity comes apart).
+
+        The Monte-Carlo method reduces as the paper did (``preset="paper"``:
+        Algorithm 2 with the plain Poisson fusion); the values of the
+        controls win over the preset's, so at their defaults it is
+        ``reduce_aliasing(lf, slope, preset="paper", seed=seed)``.
+        """
         if self.method in CV_METHODS:
-            return {**self.detect_kwargs(), "max_level": self.max_level, "keep_in_focus": self.keep_in_focus}
+            paper = {"preset": "paper"} if self.method == "monte_carlo" else {}
+            return {**self.detect_kwargs(), "max_level": self.max_level, "keep_in_focus": self.keep_in_focus,
+                    **paper}
         return {"threshold": self.threshold, "method": self.method, "nearer": self.nearer}
 
     def detection_key(self, slope):

@@ -64,7 +64,8 @@ TOOLTIPS = {
               "the refocus exactly. The live mask meanwhile shows the exact Cv (one pass per focus "
               "change). exact Cv (analytic): the Cv the paper's estimate tends to for N \u2192 \u221e, "
               "in one pass, no sampling noise; Reduce aliasing runs the paper's Algorithm 2. "
-              "Monte Carlo Cv (the paper): N random patterns, seeded.",
+              "Monte Carlo Cv (the paper): N random patterns, seeded, and Algorithm 2 with the paper's "
+              "plain Poisson fusion: at the default controls, the paper as published (preset='paper').",
     "mask": "Which detection the magenta mask over the refocused image shows now: the live Cv "
             "(exact, or Monte Carlo when that method is chosen) as the focus moves, or after Reduce "
             "aliasing with the dense-aperture method the pixels it found aliased (their predicted error "

@@ -57,3 +57,19 @@ def write_views_folder(folder, lf):
             pixels = np.round(np.clip(lf.data[u, v, :, :, 0], 0, 1) * 65535).astype(np.uint16)
             iio.imwrite(folder / f"view_{u:02d}_{v:02d}.png", pixels)
     return folder
+
+
+def write_views_with_a_nan(folder, grid=(3, 3), shape=(16, 20), at=(1, 2, 4, 5)):
+    """A camera-array folder of float32 TIFF views ``view_U_V.tif``, all 0.5 but one NaN sample at ``at``
+    (view row, view column, y, x)."""
+    import tifffile
+
+    folder = Path(folder)
+    folder.mkdir(parents=True)
+    for u in range(grid[0]):
+        for v in range(grid[1]):
+            view = np.full(shape, 0.5, np.float32)
+            if (u, v) == tuple(at[:2]):
+                view[at[2], at[3]] = np.nan
+            tifffile.imwrite(folder / f"view_{u}_{v}.tif", view)
+    return folder

@@ -19,7 +19,7 @@ from napari_lfalias.batch import MARKER_DIR, kernel_thread_budget, plan_batch, r
 from napari_lfalias.cli import main  # noqa: E402
 from napari_lfalias.errors import OutputExistsError, ParameterError  # noqa: E402
 
-from _cli_scenes import plane_lightfield, temporaries, write_views_folder  # noqa: E402
+from _cli_scenes import plane_lightfield, temporaries, write_views_folder, write_views_with_a_nan  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -226,6 +226,18 @@ def test_cli_batch_reduces_with_the_options_of_reduce_and_a_declared_occlusion_o
         err = capsys.readouterr().err
         assert "--nearer is used by" in err and words in err and "Traceback" not in err
         assert not (tmp_path / "x").exists()
+
+
+def test_cli_batch_passes_nonfinite_to_every_input(client, tmp_path, capsys):
+    folder = write_views_with_a_nan(tmp_path / "views", grid=(3, 3), shape=(16, 20), at=(1, 2, 4, 5))
+    base = ["batch", str(folder), "--scheduler", client.scheduler.address, "-q"]
+    assert main(base + ["--out", str(tmp_path / "refused")]) == 1
+    assert "NaN/Inf samples" in (err := capsys.readouterr().err) and "--nonfinite mask" in err
+    assert main(base + ["--out", str(tmp_path / "masked"), "--nonfinite", "mask"]) == 0
+    lf = io_write.read_lightfield(tmp_path / "masked" / "views.tif")
+    assert lf.weights[1, 2, 4, 5] == 0 and lf.weights.sum() == 9 * 16 * 20 - 1
+    with pytest.raises(ParameterError, match="nonfinite must be one of"):
+        run_batch([folder], tmp_path / "bad", client=client, nonfinite="zero")
 
 
 def test_cli_batch_reports_a_bad_input_and_converts_the_rest(client, tmp_path, capsys):

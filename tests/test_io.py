@@ -19,7 +19,7 @@ from napari_lfalias import _atomic, io_write
 from napari_lfalias.cli import main
 from napari_lfalias.errors import DecodeError, NonFiniteError, OutputExistsError, ParameterError
 
-from _cli_scenes import plane_lightfield, temporaries
+from _cli_scenes import plane_lightfield, temporaries, write_views_with_a_nan
 
 LFALIAS = [sys.executable, "-m", "napari_lfalias.cli"]
 
@@ -115,13 +115,7 @@ def test_nonfinite_mask_is_kept_by_lazy_light_fields(tmp_path):
 
 
 def test_load_takes_the_nonfinite_option_its_error_advises(tmp_path):
-    folder = tmp_path / "views"
-    folder.mkdir()
-    for u in range(2):
-        for v in range(2):
-            view = np.full((4, 5), 0.5, np.float32)
-            view[1, 1] = np.nan if (u, v) == (1, 0) else 0.5
-            tifffile.imwrite(folder / f"view_{u}_{v}.tif", view)
+    folder = write_views_with_a_nan(tmp_path / "views", grid=(2, 2), shape=(4, 5), at=(1, 0, 1, 1))
     with pytest.raises(NonFiniteError, match="nonfinite='mask'"):
         lfa.load(folder)
     lf = lfa.load(folder, nonfinite="mask")

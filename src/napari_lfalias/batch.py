@@ -196,7 +196,8 @@ def plan_batch(inputs, out_dir, task="convert", fmt="tif", overwrite=False, lens
     overwrite : bool
         Allow replacing outputs that exist without a marker of this batch.
     lenslet : dict, optional
-        ``white``, ``dark`` (paths) and ``grid`` (a GridModel's JSON text).
+        How to open the inputs: ``white``, ``dark`` (paths), ``grid`` (a
+        GridModel's JSON text) and ``nonfinite``.
     slope : float, optional
         Needed by ``task="reduce"``.
     skip_missing : bool
@@ -277,7 +278,8 @@ def _open_job_input(job):
         grid = GridModel.from_json(grid)
     elif grid is not None:  # a view grid (U, V)
         grid = tuple(grid)
-    return open_input(job.source, white=job.options.get("white"), dark=job.options.get("dark"), grid=grid)
+    return open_input(job.source, white=job.options.get("white"), dark=job.options.get("dark"), grid=grid,
+                      nonfinite=job.options.get("nonfinite"))
 
 
 def _run_reduce(job, lf):
@@ -398,7 +400,7 @@ def _calibrated_grid(lenslet):
 
 def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, client=None, fmt="tif",
               overwrite=False, white=None, dark=None, grid=None, slope=None, retries=2, progress=None,
-              connect_timeout=30.0, **detect_kw):
+              connect_timeout=30.0, nonfinite=None, **detect_kw):
     """Convert or reduce many inputs as dask tasks.
 
     Parameters
@@ -434,6 +436,9 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
         (``status``: ``"done"``, ``"skipped"`` or ``"failed"``).
     connect_timeout : float
         Seconds to wait for the ``scheduler`` to answer.
+    nonfinite : {"raise", "mask"}, optional
+        NaN or Inf samples of an input: it fails (default), or they get
+        weight 0 (:func:`napari_lfalias.load`).
     **detect_kw
         Options of :func:`~napari_lfalias.reduce_aliasing` (``REDUCE_OPTIONS``).
 
@@ -462,6 +467,10 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
 
         integer_at_least("workers", workers, 1)
     lenslet = {}
+    if nonfinite is not None:
+        from ._validate import one_of
+
+        lenslet["nonfinite"] = one_of("nonfinite", nonfinite, ("raise", "mask"))
     for name, frame in (("white", white), ("dark", dark)):
         if frame is not None:
             if not Path(frame).is_file():

@@ -36,7 +36,7 @@ def run_batch_command(args, stream):
     report = run_batch(
         args.inputs, args.out, args.task, scheduler=args.scheduler, workers=args.workers, fmt=args.format,
         overwrite=args.overwrite, white=args.white, dark=args.dark, grid=args.grid, slope=args.slope,
-        progress=progress, **reduction,
+        nonfinite=args.nonfinite, progress=progress, **reduction,
     )
     bar.close()
     stream.write(f"{len(report.done)} done, {len(report.skipped)} skipped (already done), "

@@ -220,7 +220,9 @@ def test_cli_batch_reduces_with_the_options_of_reduce_and_a_declared_occlusion_o
     np.testing.assert_array_equal(tifffile.imread(tmp_path / "paper" / "room_reduced.tif"),
                                   lfa.reduce_aliasing(lf, 4.0, preset="paper", seed=0).image)
     capsys.readouterr()
-    for extra, words in ((["--task", "convert"], "--task reduce"), (["--task", "reduce", "--method", "analytic"], "--method depth")):
+    refused = ((["--task", "convert"], "--task reduce"),
+               (["--task", "reduce", "--method", "analytic"], "--method depth"))
+    for extra, words in refused:
         argv = ["batch", str(path), "--slope", "4", "--out", str(tmp_path / "x"), "--nearer", "larger", *extra]
         assert main(argv) != 0
         err = capsys.readouterr().err

@@ -77,10 +77,10 @@ TOOLTIPS = {
                  "'disparity [...]' (colormap and colorbar).",
     "nearer": "Dense-aperture method only: which surface is in front where one hides another, by its "
               "disparity. A light field whose source knows its camera declares it (an HCI folder or "
-              "a lenslet capture: smaller in front; lf.meta['nearer'] in Python); otherwise it is judged from the views at "
-              "the depth edges, which they cannot always tell (wrong on 8 of 320 random scenes, "
-              "benchmarks/results/accuracy.md). Where you know your camera's order, choose it: a wrong "
-              "order blurs the in-focus surface along a defocused occluder's outline.",
+              "a lenslet capture: smaller in front; lf.meta['nearer'] in Python); otherwise it is "
+              "judged from the views at the depth edges, which they cannot always tell (wrong on 8 of "
+              "320 random scenes, benchmarks/results/accuracy.md). Where you know your camera's order, "
+              "choose it: a wrong order blurs the in-focus surface along a defocused occluder's outline.",
     "level": "Coarsest pyramid level of the reduction (Algorithm 2; Cv methods only): an aliased pixel "
              "is replaced by the first level, up to this one, where it is no longer aliased; level l "
              "blurs over about 2^l pixels.",

@@ -282,6 +282,9 @@ def test_the_occlusion_order_chosen_is_the_apis_nearer(make_napari_viewer, qtbot
         assert antialiased.metadata["lfalias_params"]["nearer"] == nearer
         np.testing.assert_array_equal(antialiased.data, lfa.antialiased_refocus(lf, 4.0, estimate, nearer=nearer))
         results[nearer] = fused.data.copy()
+    # what "auto" judged is shown, so that a user can overrule it
+    assert widget.order_combo.itemText(0) == "judged from the views (larger in front at focus 4.00)"
+    assert widget.nearer == "auto"
     assert not np.array_equal(results["smaller"], results["auto"])  # the choice reached the rendering
     reference = scene.reference(4.0)
     assert np.abs(results["auto"] - reference).mean() < np.abs(results["smaller"] - reference).mean()

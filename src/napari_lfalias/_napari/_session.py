@@ -298,10 +298,15 @@ class Reduced:
         With the disparity-guided method: the dense-aperture rendering at
         the same slope (``antialiased_refocus(lf, slope, disparity)``),
         which the reduction made anyway; ``None`` with a Cv method.
+    larger_first : bool or None
+        With the disparity-guided method and the occlusion order judged from
+        the views (``nearer="auto"``, none declared): whether the reduction
+        put the larger disparities in front; ``None`` otherwise.
     """
 
     reduction: object
     antialiased: np.ndarray | None = None
+    larger_first: bool | None = None
 
 
 class AliasingSession:
@@ -576,9 +581,11 @@ class AliasingSession:
         if not guided:
             return Reduced((yield from self._stepwise(stages, (0, 2))))
         reduction = yield from self._stepwise(_one_more_stage(stages), (0, 2))
-        yield Partial(Reduced(reduction))
+        judged = yield from self._locked((1, 2), lambda: None if detector.nearer != "auto"
+                                         else detector.guide.larger_first(slope))  # made by the reduction
+        yield Partial(Reduced(reduction, larger_first=judged))
         # needs only the views: the detector stays free for focus changes
-        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate, nearer=params.nearer))
+        return Reduced(reduction, antialiased_refocus(detector.lf, slope, estimate, nearer=params.nearer), judged)
 
     def _stepwise(self, stages, waiting):
         """Run the generator ``stages`` one step at a time under the lock, free between steps.

@@ -751,6 +751,9 @@ class AliasingWidget(QWidget):
 
         self._show("mask", reduction.detections[0].mask.astype(np.uint8), meta)
         self._show_mask_source(params.method, slope)
+        if reduced.larger_first is not None:  # say what "auto" judged, so that a user can overrule it
+            self.order_combo.setItemText(0, order_text(None, judged="larger" if reduced.larger_first else "smaller",
+                                                       slope=slope))
         self._set_status(f"reduced at slope {slope:.2f} ({side}): {share:.1%} of pixels take what a dense "
                          f"aperture records (of the flagged ones, magenta, those the rendering is sure of, and "
                          f"those next to them above T/{1 / REPLACE_FRACTION:g} where it does not hinge on its depth "

@@ -279,12 +279,13 @@ def test_threshold_scale_and_solver_reach_the_api(capsys, plane, tmp_path):
 
 
 def test_option_choices_match_the_core():
-    from napari_lfalias import cli, depth_guided, detect, reduce
+    from napari_lfalias import cli, depth_guided, detect, lightfield, reduce
 
     assert cli.METHODS == detect.METHODS
     assert cli.THRESHOLD_SCALES == detect.THRESHOLD_SCALES
     assert cli.SOLVERS == reduce.SOLVERS
     assert ("auto",) + cli.NEARER == depth_guided.NEARER
+    assert cli.NONFINITE == lightfield.NONFINITE
 
 
 def test_bad_options_fail_before_the_input_is_read(capsys, plane, tmp_path, monkeypatch):

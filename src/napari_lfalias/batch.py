@@ -469,8 +469,9 @@ def run_batch(inputs, out_dir, task="convert", *, scheduler=None, workers=None, 
     lenslet = {}
     if nonfinite is not None:
         from ._validate import one_of
+        from .lightfield import NONFINITE
 
-        lenslet["nonfinite"] = one_of("nonfinite", nonfinite, ("raise", "mask"))
+        lenslet["nonfinite"] = one_of("nonfinite", nonfinite, NONFINITE)
     for name, frame in (("white", white), ("dark", dark)):
         if frame is not None:
             if not Path(frame).is_file():

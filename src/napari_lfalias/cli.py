@@ -102,7 +102,7 @@ def _add_lenslet_options(parser):
         "the grid model from `convert --save-grid` (skips calibration)",
     )
     lenslet.add_argument(
-        "--nonfinite", choices=("raise", "mask"), default=None,
+        "--nonfinite", choices=NONFINITE, default=None,
         help="NaN or Inf samples: refuse the input (default), or give them weight 0",
     )
 
@@ -119,12 +119,14 @@ def _add_slope(parser, required=True):
 
 
 #: Choices of the numeric core, repeated here so ``lfalias --help`` does not import it
-#: (tests/test_cli.py checks they match ``detect.METHODS``, ``detect.THRESHOLD_SCALES``, ``reduce.SOLVERS``).
+#: (tests/test_cli.py checks they match ``detect.METHODS``, ``detect.THRESHOLD_SCALES``, ``reduce.SOLVERS``,
+#: ``depth_guided.NEARER`` and ``lightfield.NONFINITE``).
 METHODS = ("depth", "analytic", "monte_carlo")
 THRESHOLD_SCALES = ("cv", "angular")
 PRESETS = ("paper",)
 SOLVERS = ("auto", "lu", "multigrid", "dct")
 NEARER = ("larger", "smaller")
+NONFINITE = ("raise", "mask")
 
 
 def add_detection_options(parser, threshold=None, threshold_scale="cv"):

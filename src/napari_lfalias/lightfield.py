@@ -10,6 +10,8 @@ __all__ = ["LightField", "regular_positions", "REC709"]
 
 #: Rec. 709 luminance weights for (R, G, B).
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+#: What ``nonfinite`` may say: refuse NaN or Inf samples, or give them weight 0.
+NONFINITE = ("raise", "mask")
 
 
 def _rec709(colour):
@@ -167,7 +169,7 @@ class LightField:
                 )
             if not np.all(np.isfinite(weights)) or weights.min() < 0 or weights.max() > 1:
                 raise ParameterError("weights must be finite and lie in [0, 1]")
-        if nonfinite not in ("raise", "mask"):
+        if nonfinite not in NONFINITE:
             raise ParameterError(f"nonfinite must be 'raise' or 'mask', got {nonfinite!r}")
         self._nonfinite = nonfinite
         if not _is_lazy(data):

@@ -283,7 +283,7 @@ def test_the_occlusion_order_chosen_is_the_apis_nearer(make_napari_viewer, qtbot
         np.testing.assert_array_equal(antialiased.data, lfa.antialiased_refocus(lf, 4.0, estimate, nearer=nearer))
         results[nearer] = fused.data.copy()
     # what "auto" judged is shown, so that a user can overrule it
-    assert widget.order_combo.itemText(0) == "judged from the views (larger in front at focus 4.00)"
+    assert widget.order_combo.itemText(0) == "judged: larger in front (at 4.00)"
     assert widget.nearer == "auto"
     assert not np.array_equal(results["smaller"], results["auto"])  # the choice reached the rendering
     reference = scene.reference(4.0)
@@ -300,7 +300,7 @@ def test_the_occlusion_order_chosen_is_the_apis_nearer(make_napari_viewer, qtbot
     widget.layer_combo.setCurrentIndex(widget.layer_combo.findText("declared"))
     assert widget.source == "declared"
     assert widget.nearer == "auto"
-    assert widget.order_combo.currentText() == "as the light field declares (smaller in front)"
+    assert widget.order_combo.currentText() == "declared: smaller in front"
     _idle(qtbot, widget)
     assert widget.shutdown()
 

@@ -27,20 +27,21 @@ ORDERS = {
 
 def order_text(declared, judged=None, slope=None):
     """The occlusion-order combo's ``"auto"`` entry for a light field whose ``meta["nearer"]`` is ``declared``;
-    without a declared order, what a reduction at ``slope`` ``judged`` where it has.
+    without a declared order, what a reduction at ``slope`` ``judged`` where it has. Short enough to show
+    whole in the combo at the dock's width (the row's tooltip says the rest).
 
     Examples
     --------
     >>> order_text("smaller"), order_text(None)
-    ('as the light field declares (smaller in front)', 'judged from the views')
+    ('declared: smaller in front', 'judged from the views')
     >>> order_text(None, judged="larger", slope=4.0)
-    'judged from the views (larger in front at focus 4.00)'
+    'judged: larger in front (at 4.00)'
     """
     if declared is not None:
-        return f"as the light field declares ({declared} in front)"
+        return f"declared: {declared} in front"
     if judged is None:
         return "judged from the views"
-    return f"judged from the views ({judged} in front at focus {slope:.2f})"
+    return f"judged: {judged} in front (at {slope:.2f})"
 
 
 #: What each control means (measured numbers from benchmarks/results/detection.md and accuracy.md).

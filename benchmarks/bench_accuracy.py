@@ -27,6 +27,11 @@ Methods:
 Run::
 
     .venv/bin/python benchmarks/bench_accuracy.py --out benchmarks/results/accuracy.md
+
+A sweep of the focus over the real sub-grids (``accuracy_real_sweep.md``)::
+
+    .venv/bin/python benchmarks/bench_accuracy.py --cases hci --slopes -3 -2.5 -2 -1.5 -1 -0.5 0 0.5 1 1.5 2 2.5 \
+        3 3.5 4 --out benchmarks/results/accuracy_real_sweep.md
 """
 
 from __future__ import annotations
@@ -177,10 +182,13 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     parser.add_argument("--split", default=None,
-                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-p)")
+                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-q)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
+    parser.add_argument("--slopes", type=float, nargs="+", default=None,
+                        help="judge every case at these slopes instead of its own (a sweep of the focus; "
+                             "no images are written)")
     args = parser.parse_args(argv)
-    images_dir = None if args.out is None else args.out.parent / "accuracy"
+    images_dir = None if args.out is None or args.slopes else args.out.parent / "accuracy"
     if images_dir is not None and not (args.split or args.cases):  # a random scene's images are kept only
         for stale in images_dir.glob("fresh_*.png"):                 # while the default loses there
             stale.unlink()
@@ -191,7 +199,7 @@ def main(argv=None):
         if args.split and case.split != args.split or args.cases and args.cases.lower() not in case.name.lower():
             continue
         lines = [f"### {case.name} ({case.split})", "", case.notes, ""]
-        for slope in case.slopes:
+        for slope in args.slopes or case.slopes:
             rows, share = evaluate(case, slope, images_dir)
             header = ["method", "PSNR all", "PSNR aliased", "PSNR clean", "SSIM all", "SSIM aliased", "SSIM clean",
                       "AUC", "F1", "s"]

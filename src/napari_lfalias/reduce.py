@@ -388,7 +388,9 @@ def _replaced(guide, slope, threshold):
     """The pixels the depth-guided reduction replaces at ``slope``: :func:`replaced_pixels` of the guide's
     cautious scores (:meth:`~napari_lfalias.depth_guided.DepthGuide.scores`), their edge spread
     (:meth:`~napari_lfalias.depth_guided.DepthGuide.edge_spread`) and where the faint aliasing may be
-    taken (:meth:`~napari_lfalias.depth_guided.DepthGuide.faint_where`)."""
+    taken (:meth:`~napari_lfalias.depth_guided.DepthGuide.faint_where`), near the image's edge only
+    where the aliased region runs on to it
+    (:meth:`~napari_lfalias.depth_guided.DepthGuide.kept_off_the_edge`)."""
     from .depth_guided import FAINT_FRACTION
 
     score = guide.cautious_scores(slope)
@@ -396,7 +398,8 @@ def _replaced(guide, slope, threshold):
     # everywhere) is not needed
     if not (score > np.float32(FAINT_FRACTION * threshold)).any():
         return np.zeros(score.shape, bool)
-    return replaced_pixels(score, guide.edge_spread(slope), threshold, guide.faint_where(slope))
+    replaced = replaced_pixels(score, guide.edge_spread(slope), threshold, guide.faint_where(slope))
+    return guide.kept_off_the_edge(slope, replaced)
 
 
 def replaced_pixels(score, spread, threshold, faint_where=None, *, replace_fraction=None, faint_fraction=None,

@@ -617,10 +617,7 @@ class DepthGuide:
         def make():
             radius = aperture_radius(self.lf)
             reach = np.abs(self._rendered_disparity(slope).astype(np.float64) - slope) * radius
-            rows, cols = reach.shape
-            y, x = np.arange(rows)[:, None], np.arange(cols)[None]
-            from_edge = np.minimum(np.minimum(y, rows - 1 - y), np.minimum(x, cols - 1 - x))
-            return from_edge + abs(slope) * radius >= 0.5 * reach
+            return _from_edge(reach.shape) + abs(slope) * radius >= 0.5 * reach
 
         return self._kept(slope, "within support", make)
 
@@ -636,10 +633,7 @@ class DepthGuide:
         supported pixel lies that near, or none anywhere, ``replaced`` is kept."""
         positions = self.lf.flat_positions().astype(np.float64)
         lacking = abs(slope) * float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
-        rows, cols = replaced.shape
-        y, x = np.arange(rows)[:, None], np.arange(cols)[None]
-        from_edge = np.minimum(np.minimum(y, rows - 1 - y), np.minimum(x, cols - 1 - x))
-        supported = self.within_support(slope) | (from_edge < lacking)
+        supported = self.within_support(slope) | (_from_edge(replaced.shape) < lacking)
         outside = replaced & ~supported
         if not outside.any() or not supported.any():
             return replaced
@@ -1256,6 +1250,13 @@ class _Windows:
         shift = self.means(image) - target_means
         shift[self.single] = 0.0
         return (image - shift).astype(np.float32)
+
+
+def _from_edge(shape):
+    """``(Y, X)`` int: each pixel's distance (px) from the nearest edge of an image of ``shape``."""
+    rows, cols = shape
+    y, x = np.arange(rows)[:, None], np.arange(cols)[None]
+    return np.minimum(np.minimum(y, rows - 1 - y), np.minimum(x, cols - 1 - x))
 
 
 def _rendered_slope(slope):

@@ -615,11 +615,16 @@ class DepthGuide:
         slope = _validate.finite_float("slope", slope)
 
         def make():
-            radius = aperture_radius(self.lf)
-            reach = np.abs(self._rendered_disparity(slope).astype(np.float64) - slope) * radius
-            return _from_edge(reach.shape) + abs(slope) * radius >= 0.5 * reach
+            reach = self._blur_reach(slope)
+            return _from_edge(reach.shape) + abs(slope) * aperture_radius(self.lf) >= 0.5 * reach
 
         return self._kept(slope, "within support", make)
+
+    def _blur_reach(self, slope):
+        """How far (px) the rendering at ``slope`` blurs each pixel, ``(Y, X)`` float64: ``|d - slope|`` times
+        the :func:`aperture_radius`, ``d`` the rendered disparity (kept per slope)."""
+        return self._kept(slope, "blur reach", lambda: np.abs(self._rendered_disparity(slope).astype(np.float64)
+                                                              - slope) * aperture_radius(self.lf))
 
     def kept_off_the_edge(self, slope, replaced):
         """``replaced`` (``(Y, X)`` bool, pixels the reduction would replace at ``slope``) less those outside
@@ -637,8 +642,7 @@ class DepthGuide:
         outside = replaced & ~supported
         if not outside.any() or not supported.any():
             return replaced
-        reach = np.abs(self._rendered_disparity(slope)[outside].astype(np.float64) - slope) * aperture_radius(self.lf)
-        size = 2 * int(math.ceil(reach.max())) + 1
+        size = 2 * int(math.ceil(self._blur_reach(slope)[outside].max())) + 1
         taken = ndimage.uniform_filter((replaced & supported).astype(np.float32), size, mode="constant")
         held = ndimage.uniform_filter(supported.astype(np.float32), size, mode="constant")
         unjudged = held < np.float32(0.5 / size ** 2)  # no supported pixel within reach

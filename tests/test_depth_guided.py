@@ -9,8 +9,8 @@ from scipy import ndimage
 import napari_lfalias as lfa
 from napari_lfalias import _inputs, depth_guided, metrics, presets
 from napari_lfalias.baselines import _larger_is_nearer, view_spacing
-from napari_lfalias.depth_guided import (EDGE_TOLERANCE_PX, THRESHOLD, DepthGuide, moved_edges, predicted_error,
-                                         with_local_mean_of)
+from napari_lfalias.depth_guided import (EDGE_TOLERANCE_PX, IN_FOCUS_EDGE_PX, THRESHOLD, DepthGuide, moved_edges,
+                                         predicted_error, with_local_mean_of)
 from napari_lfalias.errors import ParameterError
 from napari_lfalias.reduce import reduction_options, replaced_pixels
 from napari_lfalias import render as render_module
@@ -895,6 +895,45 @@ def test_moved_edges_move_the_depth_edges_only():
     np.testing.assert_array_equal(shrunk == 3.0, ndimage.binary_erosion(cube_mask, iterations=EDGE_TOLERANCE_PX,
                                                                         structure=np.ones((3, 3))))
 
+
+
+def test_an_in_focus_occluders_outline_moves_out_by_its_own_blur_only():
+    y, x = np.mgrid[:64, :64]
+    square = (abs(y - 32) < 12) & (abs(x - 32) < 12)
+    disparity = np.where(square, np.float32(3.0), np.float32(-2.0))
+    ring = np.ones((3, 3), bool)
+    # focused on the square (the nearer side): its outline moves out by IN_FOCUS_EDGE_PX, and in as far as ever
+    grown, shrunk = moved_edges(disparity, 1.0, slope=3.0)
+    np.testing.assert_array_equal(grown == 3.0, ndimage.binary_dilation(square, ring, IN_FOCUS_EDGE_PX))
+    np.testing.assert_array_equal(shrunk, moved_edges(disparity, 1.0)[1])
+    # focused on the background, the defocused square's outline moves the full tolerance either way
+    for moved, unfocused in zip(moved_edges(disparity, 1.0, slope=-2.0), moved_edges(disparity, 1.0)):
+        np.testing.assert_array_equal(moved, unfocused)
+    assert IN_FOCUS_EDGE_PX < EDGE_TOLERANCE_PX
+    # the smaller disparities in front, focused on them: the background is the occluder in focus
+    grown, shrunk = moved_edges(disparity, 1.0, slope=-2.0, larger_first=False)
+    np.testing.assert_array_equal(grown, moved_edges(disparity, 1.0)[0])
+    np.testing.assert_array_equal(shrunk == 3.0, ndimage.binary_erosion(square, ring, IN_FOCUS_EDGE_PX))
+
+
+def test_the_aliased_background_beside_an_occluder_in_focus_is_replaced():
+    """Tiles in focus before a stripes wall, 4x4 views, the true disparity: the wall's aliasing runs up to the
+    tiles' outline. With the outline moved out by the full edge tolerance in the renderings that score a
+    pixel, the aliased wall in a 3 px band around the tiles gained +0.42 dB over the naive refocus (+15.41
+    overall); moved out by its own blur only (IN_FOCUS_EDGE_PX), +1.58 (+17.03), the clean pixels +7.86."""
+    scene = layered_scene([(4.0, "tiles", (0.3, 0.7, 0.3, 0.7)), (-1.9, "stripes", None)], n_views=4, size=96,
+                          seed=3)
+    slope = 4.0
+    naive = lfa.refocus(scene.lightfield, slope)
+    reference = scene.reference(slope)
+    aliased = metrics.aliased_pixels(naive, reference)
+    square = scene.disparity == np.float32(4.0)
+    band = ndimage.binary_dilation(square, iterations=3) & ~square & aliased
+    assert band.sum() > 200
+    image = lfa.reduce_aliasing(scene.lightfield, slope, disparity=scene.disparity).image
+    assert _gain(image, naive, reference, band) >= 1.2
+    assert _gain(image, naive, reference) >= 16.5
+    assert _gain(image, naive, reference, ~aliased) >= 7.0
 
 def test_the_detection_reports_the_plain_predicted_error_and_finds_more_than_the_cautious_score():
     # what the detection reports is the rendering's prediction where the views disagree, flagged where the

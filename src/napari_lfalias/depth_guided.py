@@ -328,6 +328,21 @@ def moved_edges(disparity, spacing, slope=None, larger_first=True):
     moves the full tolerance either way, and with it the in-focus surface
     behind.
 
+    Parameters
+    ----------
+    disparity : ndarray, shape (Y, X)
+    spacing : float
+        The distance between neighbouring views (units of disparity).
+    slope : float, optional
+        The focus; without it every outline moves the full tolerance.
+    larger_first : bool
+        Whether the larger disparities are in front.
+
+    Returns
+    -------
+    grown, shrunk : ndarray, shape (Y, X)
+        The larger disparities grown over the edges, and shrunk.
+
     Examples
     --------
     >>> import numpy as np
@@ -618,7 +633,8 @@ class DepthGuide:
     def edge_renderings(self, slope):
         """The rendered images at ``slope`` with the depth edges of the disparity the :meth:`rendering` uses
         (the estimate, with what the views show in focus at ``slope``) moved :data:`EDGE_TOLERANCE_PX`
-        outwards and inwards (:func:`moved_edges`), in the bins of the :meth:`rendering`; kept per slope.
+        outwards and inwards (:func:`moved_edges`; an occluder in focus at ``slope`` outwards by
+        :data:`IN_FOCUS_EDGE_PX` only), in the bins of the :meth:`rendering`; kept per slope.
 
         They are rendered only where they differ from the :meth:`rendering`
         and :meth:`scores` reads them (within the reach of

@@ -896,7 +896,6 @@ def test_moved_edges_move_the_depth_edges_only():
                                                                         structure=np.ones((3, 3))))
 
 
-
 def test_an_in_focus_occluders_outline_moves_out_by_its_own_blur_only():
     y, x = np.mgrid[:64, :64]
     square = (abs(y - 32) < 12) & (abs(x - 32) < 12)
@@ -934,6 +933,7 @@ def test_the_aliased_background_beside_an_occluder_in_focus_is_replaced():
     assert _gain(image, naive, reference, band) >= 1.2
     assert _gain(image, naive, reference) >= 16.5
     assert _gain(image, naive, reference, ~aliased) >= 7.0
+
 
 def test_the_detection_reports_the_plain_predicted_error_and_finds_more_than_the_cautious_score():
     # what the detection reports is the rendering's prediction where the views disagree, flagged where the

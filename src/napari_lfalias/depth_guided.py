@@ -355,14 +355,13 @@ def moved_edges(disparity, spacing, slope=None, larger_first=True):
     >>> grown[0].tolist(), shrunk[0].tolist()
     ([0.0, 0.0, 0.0, 0.0, 2.0, 2.0, 2.0, 2.0, 2.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0])
     """
-    from .render import IN_FOCUS_PX
+    from .render import sharp_at
 
     grown, shrunk = _edges_moved(disparity, spacing, EDGE_TOLERANCE_PX)
     if slope is None:
         return grown, shrunk
     nearer = grown if larger_first else shrunk
-    brought_into_focus = np.abs(nearer - slope) * spacing < IN_FOCUS_PX
-    brought_into_focus &= np.abs(disparity - slope) * spacing >= IN_FOCUS_PX
+    brought_into_focus = sharp_at(nearer, slope, spacing) & ~sharp_at(disparity, slope, spacing)
     if brought_into_focus.any():
         outline = _edges_moved(disparity, spacing, IN_FOCUS_EDGE_PX)[0 if larger_first else 1]
         nearer = np.where(brought_into_focus, outline, nearer)
@@ -649,11 +648,12 @@ class DepthGuide:
             if not used.any():
                 return [self.scored_rendering(slope).image] * 2
             main, renderer = self._layers(slope), self._renderer(slope)
+            larger_first = self.larger_first(slope)
             images = []
             for moved in moved_edges(self._rendered_disparity(slope), renderer.spacing, _rendered_slope(slope),
-                                     self.larger_first(slope)):
+                                     larger_first):
                 layers = renderer.layers(self._in_focus_at(slope, moved), self._confidence_at(slope),
-                                         larger_first=self.larger_first(slope), bins_of=main)
+                                         larger_first=larger_first, bins_of=main)
                 within = used & layers.differs_from(main)
                 images.append(self._in_data_units(renderer.composite(layers, within=within, elsewhere=rendering,
                                                                      trust=False)).image)
@@ -882,7 +882,7 @@ class DepthGuide:
         if alternative is None:
             return disparity
         from .baselines import view_spacing
-        from .render import IN_FOCUS_PX
+        from .render import sharp_at
 
         spacing = view_spacing(self.lf.positions)
         nearer = self._has_period() & (np.abs(alternative - slope) < np.abs(disparity - slope))  # False where NaN
@@ -922,8 +922,7 @@ class DepthGuide:
             at_candidate, candidate = self._least_cv_near(candidate, tried, reach=PERIOD_SEARCH)
             fits = tried & (at_candidate <= PERIOD_MAX_CV) & (at_candidate <= PERIOD_FIT * at_estimate + MIN_ANGULAR_CV)
             fits = _by_surface(fits, tried)  # a surface's fit, not one pixel's chance
-            in_focus = np.abs(candidate - slope) * spacing < IN_FOCUS_PX
-            best[fits] = np.where(in_focus, np.float32(slope), candidate)[fits]
+            best[fits] = np.where(sharp_at(candidate, slope, spacing), np.float32(slope), candidate)[fits]
             undecided &= ~fits
         return best
 

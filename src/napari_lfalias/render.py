@@ -155,6 +155,12 @@ def _run(name, *args):
         getattr(_kernels(), name)(*args)
 
 
+def sharp_at(disparity, slope, spacing):
+    """Where a surface at ``disparity`` is in focus at ``slope``: blurred over less than :data:`IN_FOCUS_PX`
+    (views ``spacing`` apart), ``disparity``'s shape, bool."""
+    return np.abs(disparity - slope) * spacing < IN_FOCUS_PX
+
+
 def _bins(disparity, slope, spacing, max_bins):
     """Bin edges ``(K + 1,)`` over the disparity range and each bin's box taps ``(K, 4)``."""
     from .baselines import _box_taps
@@ -533,7 +539,7 @@ class SlopeRenderer:
         share = np.divide(blurred, den, out=np.zeros_like(den), where=seen)
         if trust:
             trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
-        in_focus = (np.abs(layers.disparity - slope) * spacing < IN_FOCUS_PX) & (share < 1e-3)
+        in_focus = sharp_at(layers.disparity, slope, spacing) & (share < 1e-3)
         rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
                               share.astype(np.float32), trusted if trust else None)
         if windows is None or within is None:

@@ -42,7 +42,8 @@ disparity. Cases are split:
   any change, then used to find the focus band (scene 1805 at -4.4).
   fresh-q (seeds 1900-1919) was first run at stop 48, before any change
   (``results/accuracy_fresh_q.md``); fresh-r (seeds 2000-2019) at stop 49,
-  before any change (``results/accuracy_fresh_r.md``).
+  before any change (``results/accuracy_fresh_r.md``); fresh-s (seeds
+  2100-2119) at stop 50, before any change (``results/accuracy_fresh_s.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -227,7 +228,7 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-l": range(1400, 1420), "fresh-m": range(1500, 1520),
                "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
-               "fresh-r": range(2000, 2020)}
+               "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -624,6 +624,27 @@ def test_where_the_naive_refocus_lacks_views_at_the_images_edge_the_rendering_st
     assert (result.level[outer] > 0).mean() > 0.3
 
 
+
+def test_views_that_hold_no_sample_do_not_count_where_the_naive_refocus_lacks_views():
+    """A lenslet capture's outer views can be black (zero weight) all over. Where the naive refocus lacks
+    views is |slope| times the offset of the farthest view that holds samples, as the rendering's reach
+    (aperture_radius) counts it: a 5x5 light field whose outer ring is black lacks views only on the
+    outermost row at slope 1, so a replaced strip along the edge with no majority inside keeps that row
+    alone, where with the ring lit it keeps two."""
+    rng = np.random.default_rng(0)
+    data = rng.uniform(0.2, 0.8, (5, 5, 48, 48, 1)).astype(np.float32)
+    replaced = np.zeros((48, 48), bool)
+    replaced[:3, 10:38] = True  # 3 rows along the top edge, none inside: no majority carries them
+    kept_rows = {}
+    for ring in ("lit", "black"):
+        weights = np.ones((5, 5, 48, 48), np.float32)
+        if ring == "black":
+            weights[[0, -1]], weights[:, [0, -1]] = 0.0, 0.0
+        guide = DepthGuide(lfa.LightField(data, weights=weights), np.full((48, 48), 6.0, np.float32))
+        assert not guide.within_support(1.0)[:3, 24].any()  # the blur of 5 px per view step is cut off there
+        kept_rows[ring] = guide.kept_off_the_edge(1.0, replaced)[:3, 24].tolist()
+    assert kept_rows == {"lit": [True, True, False], "black": [True, False, False]}
+
 def test_a_detector_takes_another_occlusion_order_and_keeps_its_disparity():
     """``AliasingDetector.use_nearer`` (the napari widget's order control): the reductions of the order
     chosen, from the disparity handed over once."""

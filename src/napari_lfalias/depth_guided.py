@@ -696,8 +696,7 @@ class DepthGuide:
         there) held back: there the rendering's stand-ins are the better guess (fresh scene 314 at 1.1,
         5x5 views: the naive refocus 10x the rendering's squared error on the outermost two rows). Where no
         supported pixel lies that near, or none anywhere, ``replaced`` is kept."""
-        positions = self.lf.flat_positions().astype(np.float64)
-        lacking = abs(slope) * float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
+        lacking = abs(slope) * _farthest_view(self.lf)
         supported = self.within_support(slope) | (_from_edge(replaced.shape) < lacking)
         outside = replaced & ~supported
         if not outside.any() or not supported.any():
@@ -1251,12 +1250,17 @@ def aperture_radius(lf):
     """
     from .baselines import view_spacing
 
+    return _farthest_view(lf) + 0.5 * view_spacing(lf.positions)
+
+
+def _farthest_view(lf):
+    """How far (units of disparity) the view farthest from the centre of ``lf``'s views lies from it, along
+    either axis; only views with any weight count (a lenslet capture's black corner views hold no sample)."""
     positions = lf.flat_positions().astype(np.float64)
     if lf.weights is not None:
         seen = lf.weights.reshape(len(positions), -1).max(axis=1) > 0
         positions = positions[seen] if seen.any() else positions
-    offsets = np.abs(positions - positions.mean(axis=0))
-    return float(offsets.max(initial=0.0)) + 0.5 * view_spacing(lf.positions)
+    return float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
 
 
 def with_local_mean_of(naive, image, windows):

@@ -540,7 +540,14 @@ class DepthGuide:
         true one (fresh scene 1510 at 3.9, a 6x6 checker wall estimated a
         period off: 2.76 dB below the naive refocus -> 0.43; 1614 at -3.1:
         -0.28 -> +1.17, its clean pixels -0.91 -> +0.50); one is still
-        wrong (fresh scene 1515 at 3.8).
+        wrong (fresh scene 1515 at 3.8). Regions off that surface where
+        the estimate is unsure everywhere (:func:`_unsure_islands`: specks
+        of the wall the focus test missed) are put at ``slope`` too: left at
+        the estimate, each made an edge of its own whose sure side, the wall
+        in focus, agreed across the views as an occluder's does (fresh scene
+        2102 at 3.4, a checker wall estimated a period off behind a noise
+        square: judged larger first from 3866 edge pixels, 720 at the true
+        edges; 0.32 dB below the naive refocus).
         """
         if self.nearer != "auto":
             return self.nearer == "larger"
@@ -553,11 +560,14 @@ class DepthGuide:
             return self._larger_first
 
         def make():
+            from .baselines import SURE_CONFIDENCE
+
             disparity, confidence = self.estimate
             rendered = self._rendered_disparity(slope)
             moved = overruled | (rendered != disparity)
-            return self._judge_order(np.where(overruled, np.float32(slope), rendered),
-                                     np.where(moved, np.float32(1), confidence))
+            at_slope = overruled | _unsure_islands(overruled, moved | (confidence >= SURE_CONFIDENCE))
+            return self._judge_order(np.where(at_slope, np.float32(slope), rendered),
+                                     np.where(moved | at_slope, np.float32(1), confidence))
 
         return self._kept(slope, "larger first", make)
 
@@ -1317,6 +1327,31 @@ class _Windows:
         shift = self.means(image) - target_means
         shift[self.single] = 0.0
         return (image - shift).astype(np.float32)
+
+
+def _unsure_islands(surface, sure):
+    """The regions off ``surface`` ((Y, X) bool) with no ``sure`` pixel, ``(Y, X)`` bool: connected pixels
+    that ``surface`` and the image's edge enclose, where nothing is known of them but an unsure estimate.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> surface = np.ones((5, 7), bool)
+    >>> surface[1:4, 1:3] = surface[2, 5] = False  # a region of six pixels and a speck
+    >>> sure = np.zeros((5, 7), bool)
+    >>> sure[2, 1] = True  # one pixel of the region is sure
+    >>> _unsure_islands(surface, sure).astype(int)
+    array([[0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 0, 1, 0],
+           [0, 0, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 0, 0, 0]])
+    """
+    labels, count = ndimage.label(~surface)
+    known = np.zeros(count + 1, bool)
+    known[labels[sure]] = True
+    known[0] = True  # the surface itself
+    return ~known[labels]
 
 
 def _from_edge(shape):

@@ -43,7 +43,11 @@ disparity. Cases are split:
   fresh-q (seeds 1900-1919) was first run at stop 48, before any change
   (``results/accuracy_fresh_q.md``); fresh-r (seeds 2000-2019) at stop 49,
   before any change (``results/accuracy_fresh_r.md``); fresh-s (seeds
-  2100-2119) at stop 50, before any change (``results/accuracy_fresh_s.md``).
+  2100-2119) at stop 50, before any change (``results/accuracy_fresh_s.md``),
+  then used (scene 2102) to find the unsure islands of the order judged at a
+  slope and (scene 1902, fresh-q) the order of a periodic light field;
+  fresh-t (seeds 2200-2219) was first run at stop 50 with the code before
+  and after those changes (``results/accuracy_fresh_t.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -228,7 +232,7 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-l": range(1400, 1420), "fresh-m": range(1500, 1520),
                "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
-               "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120)}
+               "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -269,7 +269,7 @@ IN_FOCUS_EDGE_PX = 1
 #: up, 4 slopes, 3 and 2 (and the holdout's checkerboard 3x3 at -3, 61 %: right at the slope only).
 OVERRULED_SHARE = 0.3
 #: Where the occlusion order of a light field whose estimate has periodic surfaces is judged
-#: (:meth:`DepthGuide._order_where_a_period_is_in_focus`): at most this many of the disparities the periodic
+#: (:meth:`DepthGuide._orders_where_a_period_is_in_focus`): at most this many of the disparities the periodic
 #: pixels reach by whole periods, up to :data:`PERIODS_TRIED` either way, counted in bins of
 #: :data:`PERIOD_SLOPE_BIN_PX` of motion per view step (:func:`_period_slopes`).
 PERIOD_SLOPES = 3
@@ -1393,7 +1393,7 @@ class _Windows:
 
 def _period_slopes(disparity, alternative, periodic, spacing, periods=PERIODS_TRIED, most=PERIOD_SLOPES):
     """Where the ``periodic`` pixels' surfaces may lie: the disparities (``most`` of them, the commonest
-    first, each at least two bins of :data:`PERIOD_SLOPE_BIN_PX` of motion per view step from those before
+    first, each more than two bins of :data:`PERIOD_SLOPE_BIN_PX` of motion per view step from those before
     it) that the most of them reach by whole periods (``alternative - disparity``, up to ``periods`` either
     way), within the estimate's range (its 1st to 99th percentile, widened by 1); none where less than
     :data:`ORDER_PERIODIC_SHARE` of the image is periodic.

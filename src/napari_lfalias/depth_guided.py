@@ -269,16 +269,16 @@ IN_FOCUS_EDGE_PX = 1
 #: up, 4 slopes, 3 and 2 (and the holdout's checkerboard 3x3 at -3, 61 %: right at the slope only).
 OVERRULED_SHARE = 0.3
 #: Where the occlusion order of a light field whose estimate has periodic surfaces is judged
-#: (:meth:`DepthGuide._orders_where_a_period_is_in_focus`): at most this many of the disparities the periodic
+#: (:meth:`DepthGuide._order_where_a_period_is_in_focus`): at most this many of the disparities the periodic
 #: pixels reach by whole periods, up to :data:`PERIODS_TRIED` either way, counted in bins of
 #: :data:`PERIOD_SLOPE_BIN_PX` of motion per view step (:func:`_period_slopes`).
 PERIOD_SLOPES = 3
 PERIODS_TRIED = 2
 PERIOD_SLOPE_BIN_PX = 0.25
 #: Share of the image whose views fit a second disparity a period away (:meth:`DepthGuide._has_period`)
-#: before the order is judged where a periodic surface is in focus: each slope tried costs a focus test
-#: (0.18 s on the brick room 8x8 at 512 px, whose bricks make 1.5 % of it periodic; nothing was overruled
-#: there). On the random scenes whose order this changed, 50-75 % of the image was periodic.
+#: before the order is judged where a periodic surface is in focus: each slope tried costs a focus test and a
+#: judgement of the order (0.2-0.3 s for a 6x6 light field at 256 px; the brick room's bricks make 1.5 % of it
+#: periodic, and it is not tried there). On the random scenes whose order this changed, 50-75 % was periodic.
 ORDER_PERIODIC_SHARE = 0.2
 #: How many periods from its estimate :meth:`DepthGuide._least_change` moves a pixel at most.
 PERIODS_REACH = 4
@@ -486,7 +486,7 @@ class DepthGuide:
         self._focus_test = None
         self._luminance = None
         self._larger_first = None
-        self._period_orders = None  # [(slope, larger first), ...] where a periodic surface is in focus
+        self._period_orders = None  # {period slope: larger first, or None where nothing is overruled}
 
     @property
     def estimate(self):
@@ -567,7 +567,7 @@ class DepthGuide:
         trusted to judge the order once. The order is judged instead at the
         slopes the periodic pixels reach by whole periods
         (:func:`_period_slopes`) where the views overrule the estimate as
-        above (:meth:`_orders_where_a_period_is_in_focus`), and a slope
+        above (:meth:`_order_where_a_period_is_in_focus`), and a slope
         without an exception of its own takes the order judged at the
         nearest of them. The views cannot tell which of its periods a
         periodic wall lies at, and the order judged with the wall at one
@@ -589,10 +589,9 @@ class DepthGuide:
         overruled = self._overruled(slope)
         if overruled.mean() >= OVERRULED_SHARE:
             return self._kept(slope, "larger first", lambda: self._order_at(slope, overruled))
-        if self._period_orders is None:
-            self._period_orders = self._orders_where_a_period_is_in_focus()
-        if self._period_orders:
-            return min(self._period_orders, key=lambda found: abs(found[0] - slope))[1]
+        order = self._order_where_a_period_is_in_focus(slope)
+        if order is not None:
+            return order
         if self._larger_first is None:
             disparity, confidence = self.estimate
             self._larger_first = self._judge_order(disparity, np.where(self._has_period(), np.float32(0), confidence))
@@ -611,27 +610,32 @@ class DepthGuide:
         return self._judge_order(np.where(at_slope, np.float32(slope), rendered),
                                  np.where(moved | at_slope, np.float32(1), confidence))
 
-    def _orders_where_a_period_is_in_focus(self):
-        """``[(slope, larger first), ...]``: the occlusion order judged (:meth:`_order_at`) at each of the
-        :func:`_period_slopes` of the estimate where the views overrule it on at least
-        :data:`OVERRULED_SHARE` of the image (a periodic surface the estimate may have a period off is in
-        focus there). What is made for those slopes is not kept."""
+    def _order_where_a_period_is_in_focus(self, slope):
+        """The occlusion order judged (:meth:`_order_at`) at the one of the estimate's :func:`_period_slopes`
+        nearest ``slope`` where the views overrule it on at least :data:`OVERRULED_SHARE` of the image (a
+        periodic surface the estimate may have a period off is in focus there), or ``None`` where there is
+        none. Each period slope is judged once, the nearest first and only as far as needed (0.5-0.6 s for
+        the two or three of a 6x6 light field at 256 px); what is made for it is not kept."""
         from .baselines import view_spacing
 
-        disparity, alternative = self.estimate[0], self.alternative
-        if alternative is None:
-            return []
-        slopes = _period_slopes(disparity, alternative, self._has_period(), view_spacing(self.lf.positions))
-        kept, orders = (self._slope, self._at_slope), []
-        try:
-            for slope in slopes:
-                self._slope, self._at_slope = None, {}
-                overruled = self._overruled(slope)
-                if overruled.mean() >= OVERRULED_SHARE:
-                    orders.append((slope, self._order_at(slope, overruled)))
-        finally:
-            self._slope, self._at_slope = kept
-        return orders
+        if self._period_orders is None:
+            disparity, alternative = self.estimate[0], self.alternative
+            slopes = [] if alternative is None else _period_slopes(disparity, alternative, self._has_period(),
+                                                                   view_spacing(self.lf.positions))
+            self._period_orders = dict.fromkeys(slopes, "unjudged")
+        for candidate in sorted(self._period_orders, key=lambda period_slope: abs(period_slope - slope)):
+            if self._period_orders[candidate] == "unjudged":
+                kept = (self._slope, self._at_slope)
+                try:
+                    self._slope, self._at_slope = None, {}
+                    overruled = self._overruled(candidate)
+                    self._period_orders[candidate] = (self._order_at(candidate, overruled)
+                                                      if overruled.mean() >= OVERRULED_SHARE else None)
+                finally:
+                    self._slope, self._at_slope = kept
+            if self._period_orders[candidate] is not None:
+                return self._period_orders[candidate]
+        return None
 
     def _has_period(self):
         """Where the views fit a second disparity a period of a texture away (:data:`MIN_PERIOD_PX`): the

@@ -486,7 +486,8 @@ class DepthGuide:
         self._focus_test = None
         self._luminance = None
         self._larger_first = None
-        self._period_orders = None  # {period slope: larger first, or None where nothing is overruled}
+        self._period_slopes = None  # where a periodic surface may be in focus (_period_slopes)
+        self._period_orders = {}  # {period slope: larger first, or None where the views overrule too little}
 
     @property
     def estimate(self):
@@ -618,13 +619,12 @@ class DepthGuide:
         the two or three of a 6x6 light field at 256 px); what is made for it is not kept."""
         from .baselines import view_spacing
 
-        if self._period_orders is None:
+        if self._period_slopes is None:
             disparity, alternative = self.estimate[0], self.alternative
-            slopes = [] if alternative is None else _period_slopes(disparity, alternative, self._has_period(),
-                                                                   view_spacing(self.lf.positions))
-            self._period_orders = dict.fromkeys(slopes, "unjudged")
-        for candidate in sorted(self._period_orders, key=lambda period_slope: abs(period_slope - slope)):
-            if self._period_orders[candidate] == "unjudged":
+            self._period_slopes = [] if alternative is None else _period_slopes(
+                disparity, alternative, self._has_period(), view_spacing(self.lf.positions))
+        for candidate in sorted(self._period_slopes, key=lambda period_slope: abs(period_slope - slope)):
+            if candidate not in self._period_orders:
                 kept = (self._slope, self._at_slope)
                 try:
                     self._slope, self._at_slope = None, {}

@@ -232,7 +232,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-l": range(1400, 1420), "fresh-m": range(1500, 1520),
                "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
-               "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220)}
+               "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
+               "fresh-u": range(2300, 2320)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -568,9 +568,11 @@ class DepthGuide:
         trusted to judge the order once. The order is judged instead at the
         slopes the periodic pixels reach by whole periods
         (:func:`_period_slopes`) where the views overrule the estimate as
-        above (:meth:`_order_where_a_period_is_in_focus`), and a slope
-        without an exception of its own takes the order judged at the
-        nearest of them. The views cannot tell which of its periods a
+        above (:meth:`_order_where_a_period_is_in_focus`), and every slope
+        takes the order judged at the nearest of them, one with an
+        exception of its own too (fresh scene 2216, 4x4, a checker wall at
+        -3.7: judged at -3.7 smaller first, 0.24 dB below the naive refocus;
+        at its period slope -3.67 larger first, the scene's order, +0.32). The views cannot tell which of its periods a
         periodic wall lies at, and the order judged with the wall at one
         period can be the other's (a wall behind its occluders has the
         smaller disparity at one period, the larger at the next); the
@@ -587,12 +589,12 @@ class DepthGuide:
         """
         if self.nearer != "auto":
             return self.nearer == "larger"
-        overruled = self._overruled(slope)
-        if overruled.mean() >= OVERRULED_SHARE:
-            return self._kept(slope, "larger first", lambda: self._order_at(slope, overruled))
         order = self._order_where_a_period_is_in_focus(slope)
         if order is not None:
             return order
+        overruled = self._overruled(slope)
+        if overruled.mean() >= OVERRULED_SHARE:
+            return self._kept(slope, "larger first", lambda: self._order_at(slope, overruled))
         if self._larger_first is None:
             disparity, confidence = self.estimate
             self._larger_first = self._judge_order(disparity, np.where(self._has_period(), np.float32(0), confidence))

@@ -47,7 +47,9 @@ disparity. Cases are split:
   then used (scene 2102) to find the unsure islands of the order judged at a
   slope and (scene 1902, fresh-q) the order of a periodic light field;
   fresh-t (seeds 2200-2219) was first run at stop 50 with the code before
-  and after those changes (``results/accuracy_fresh_t.md``).
+  and after those changes (``results/accuracy_fresh_t.md``), then used
+  (scene 2216) to find the last of them; fresh-u (seeds 2300-2319) was
+  first run at stop 50, before and after it (``results/accuracy_fresh_u.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture

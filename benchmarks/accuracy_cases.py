@@ -49,7 +49,9 @@ disparity. Cases are split:
   fresh-t (seeds 2200-2219) was first run at stop 50 with the code before
   and after those changes (``results/accuracy_fresh_t.md``), then used
   (scene 2216) to find the last of them; fresh-u (seeds 2300-2319) was
-  first run at stop 50, before and after it (``results/accuracy_fresh_u.md``).
+  first run at stop 50, before and after it (``results/accuracy_fresh_u.md``);
+  fresh-v (seeds 2400-2419) at the start of stop 51, before any change
+  (``results/accuracy_fresh_v.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -187,11 +189,22 @@ def synthetic_cases(size=256):
                           size=size, seed=14, name="smaller disparity in front")
     cases.append(_synthetic("lines over tiles, 4x4, smaller disparity in front", "holdout", scene, [-4.0, 3.0],
                             "occlusion order reversed (larger disparity behind)"))
-    scene = layered_scene([(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)], n_views=3,
-                          size=size, seed=15, name="periodic wall")
-    cases.append(_synthetic("noise over a checkerboard, 3x3", "holdout", scene, [4.0, -3.0],
-                            "periodic texture: its disparity is ambiguous to within a period"))
+    cases.append(checkerboard_case(size))
     return cases
+
+
+def checkerboard_case(size=256, covering_shift=0.0):
+    """The holdout's noise square at 4 before a checkerboard wall at -3, 3x3 views.
+
+    ``covering_shift``: the wall moved by that much disparity, its texture the same (``periodic_ambiguity.py``).
+    """
+    layers = [(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)]
+    moved = layers[:-1] + [(-3.0 + float(covering_shift), "checker", None)]
+    scene = layered_scene(moved, n_views=3, size=size, seed=15, name="periodic wall",
+                          textures_for=[d for d, _, _ in layers])
+    name = "noise over a checkerboard, 3x3" + (f", the wall at {-3.0 + covering_shift:+.1f}" if covering_shift else "")
+    return _synthetic(name, "holdout", scene, [4.0, -3.0],
+                      "periodic texture: its disparity is ambiguous to within a period")
 
 
 #: The notes of the sub-grid whose views' cells overhang the full grid's aperture (split ``"real-wider"``).
@@ -235,15 +248,27 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
                "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
-               "fresh-u": range(2300, 2320)}
+               "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 
-def fresh_case(seed, split, size=256):
-    """A random scene drawn from ``seed``: two or three layers (disparities in [-5, 5], at least 2 apart,
-    front to back in one depth order, the last covering the view), any texture, 3x3 to 9x9 views, and
-    at random read and shot noise, calibrated vignetting, a Bayer mosaic and over-exposure. Judged at each
-    layer's disparity, one drawn between them and the front layer's plus 0.4."""
+@dataclass(frozen=True)
+class FreshDraw:
+    """What :func:`fresh_case` draws from a seed: the layers ``(disparity, texture, box)`` front to back
+    (the last covering the view), the views per side, the camera's effects and the slopes judged."""
+
+    layers: list
+    n_views: int
+    camera: dict
+    slopes: list
+
+
+def fresh_draw(seed):
+    """The random scene of ``seed`` (:class:`FreshDraw`), without rendering it: two or three layers
+    (disparities in [-5, 5], at least 2 apart, front to back in one depth order, the last covering the
+    view), any texture, 3x3 to 9x9 views, and at random read and shot noise, calibrated vignetting, a
+    Bayer mosaic and over-exposure. Judged at each layer's disparity, one drawn between them and the
+    front layer's plus 0.4."""
     rng = np.random.default_rng(seed)
     n_layers = int(rng.integers(2, 4))
     while True:
@@ -269,14 +294,28 @@ def fresh_case(seed, split, size=256):
         camera.update(bayer=True)
     if rng.random() < 0.25:
         camera.update(exposure=float(rng.uniform(1.2, 1.8)))
-    scene = layered_scene(layers, n_views=n_views, size=size, seed=seed, name=f"fresh {seed}")
     slopes = sorted({float(d) for d in disparities}
                     | {float(np.round(rng.uniform(disparities.min(), disparities.max()), 1)),
                        float(disparities[0] + 0.4)})
-    name = f"fresh {seed}, {n_views}x{n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
+    return FreshDraw(layers, n_views, camera, slopes)
+
+
+def fresh_case(seed, split, size=256, covering_shift=0.0):
+    """The random scene of ``seed`` (:func:`fresh_draw`) as a :class:`Case` of ``split``.
+
+    ``covering_shift``: the last layer (the one covering the view) moved by that much disparity, the
+    textures, camera and slopes those of the scene as drawn (``periodic_ambiguity.py``)."""
+    draw = fresh_draw(seed)
+    layers = list(draw.layers)
+    if covering_shift:
+        layers[-1] = (layers[-1][0] + float(covering_shift),) + layers[-1][1:]
+    scene = layered_scene(layers, n_views=draw.n_views, size=size, seed=seed, name=f"fresh {seed}",
+                          textures_for=[d for d, _, _ in draw.layers])
+    name = f"fresh {seed}, {draw.n_views}x{draw.n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
+    camera = draw.camera
     notes = "camera: " + (", ".join(f"{k} {v:.3g}" if isinstance(v, float) else k for k, v in camera.items())
                           or "ideal")
-    return _synthetic(name, split, scene, slopes, notes, **camera, **({"seed": seed} if camera else {}))
+    return _synthetic(name, split, scene, draw.slopes, notes, **camera, **({"seed": seed} if camera else {}))
 
 
 def fresh_cases(size=256, split=None):

@@ -161,3 +161,28 @@ def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physic
     assert "disparity" not in case.lightfield.meta and "disparity_range" not in case.lightfield.meta
     assert set(np.unique(case.disparity)) <= set(np.float32(layers))
     assert set(layers) <= set(case.slopes)
+
+
+def test_a_checker_wall_moved_by_a_period_of_its_texture_gives_the_same_views_but_not_the_same_aliasing():
+    """Why some of the benchmark's truth no method can find (``benchmarks/periodic_ambiguity.py``): fresh
+    scene 2414 (7x7 views, bricks at -2 before a checker wall of 3 px cells at 3.9) gives bit-identical views
+    with the wall at -2.1, a period (6 px per view step) nearer, whose dense aperture sees the wall nearly in
+    focus at -2: half the image aliased as drawn, none with the wall a period off. Moved by 4 px per view
+    step instead, the views differ."""
+    from functools import partial
+
+    from periodic_ambiguity import alias_worlds
+
+    drawn = accuracy_cases.fresh_case(2414, "fresh-v", size=96)
+    moved = accuracy_cases.fresh_case(2414, "fresh-v", size=96, covering_shift=-6.0)
+    assert moved.slopes == drawn.slopes and moved.name.endswith("checker -2.1")
+    np.testing.assert_allclose(moved.lightfield.data, drawn.lightfield.data, rtol=0, atol=1e-5)
+    not_a_period = accuracy_cases.fresh_case(2414, "fresh-v", size=96, covering_shift=-4.0)
+    assert np.abs(np.asarray(not_a_period.lightfield.data) - np.asarray(drawn.lightfield.data)).max() > 0.1
+    naive = lfa.refocus(drawn.lightfield, -2.0)
+    assert drawn.truth(-2.0, naive).mean() > 0.4
+    assert not moved.truth(-2.0, naive).any()
+    worlds = alias_worlds(drawn, partial(accuracy_cases.fresh_case, 2414, "fresh-v", 96))
+    assert [world.name.rsplit(" ", 1)[-1] for world in worlds] == ["-8.1", "-2.1", "+9.9", "+15.9"]
+    stripes = partial(accuracy_cases.fresh_case, 2400, "fresh-v", 48)  # its wall is a grating
+    assert not alias_worlds(stripes(0.0), stripes)

@@ -5,7 +5,7 @@ import pytest
 from scipy import ndimage
 
 from napari_lfalias import LightField, ParameterError, refocus
-from napari_lfalias.synthetic import SyntheticScene, brick_room, textured_plane, textureless_plane
+from napari_lfalias.synthetic import SyntheticScene, brick_room, layered_scene, textured_plane, textureless_plane
 
 
 @pytest.fixture(scope="module")
@@ -261,3 +261,17 @@ def test_the_vignetted_reference_weighs_every_ray_where_it_lands(slope):
     inner = (slice(6, -6), slice(6, -6))
     np.testing.assert_allclose(reference[inner], brute[inner], rtol=0, atol=1e-6)
     assert np.abs(scene.reference(slope, m) - brute)[inner].max() > 1e-3  # the uniform aperture is not it
+
+
+def test_a_layered_scene_draws_its_textures_for_the_disparities_it_is_given():
+    """``textures_for``: the textures of the scene with those disparities (their period spans the view and
+    the largest motion); the layers' own by default, a named error when not a list of numbers."""
+    layers = [(2.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-1.0, "checker", None)]
+    own = layered_scene(layers, n_views=3, size=32, seed=4)
+    same = layered_scene(layers, n_views=3, size=32, seed=4, textures_for=[2.0, -1.0])
+    np.testing.assert_array_equal(own.lightfield.data, same.lightfield.data)
+    wider = layered_scene(layers, n_views=3, size=32, seed=4, textures_for=[9.0, -1.0])  # a longer period
+    assert not np.array_equal(own.lightfield.data, wider.lightfield.data)
+    for bad, match in ((2.0, "sequence"), ([], "at least one"), ([1.0, np.nan], r"textures_for\[1\]")):
+        with pytest.raises(ParameterError, match=match):
+            layered_scene(layers, n_views=3, size=32, textures_for=bad)

@@ -647,6 +647,17 @@ def _period(size, n_views, disparities, margin=64):
     return period, (size + period) // 2
 
 
+def _disparity_list(values, name="textures_for"):
+    """``values`` as a non-empty list of finite floats, or a :class:`ParameterError` naming ``name``."""
+    try:
+        values = list(values)
+    except TypeError:
+        raise ParameterError(f"{name} must be a sequence of disparities, got {values!r}") from None
+    if not values:
+        raise ParameterError(f"{name} must hold at least one disparity")
+    return [_validate.finite_float(f"{name}[{k}]", value) for k, value in enumerate(values)]
+
+
 def _check(n_views, size, seed):
     n_views = _validate.integer_at_least("n_views", n_views, 1)
     size = _validate.integer_at_least("size", size, 8)
@@ -767,7 +778,7 @@ def textured_plane(n_views=8, size=512, seed=0, disparity=1.0):
     return SyntheticScene([plane], n_views, size, name="textured plane")
 
 
-def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene"):
+def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene", *, textures_for=None):
     """A scene of fronto-parallel layers with textures of several kinds, front to back.
 
     Parameters
@@ -782,6 +793,13 @@ def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene"):
         As in :func:`brick_room`.
     name : str
         Stored in the light field's metadata.
+    textures_for : sequence of float, optional
+        The layers' disparities the textures are drawn for (their period
+        spans the view and the largest motion over the aperture; default:
+        the layers' own). Given the disparities of another scene with the
+        same ``seed``, the textures are that scene's: a checker wall moved
+        by a whole period of its texture per view step then gives the same
+        views (``benchmarks/periodic_ambiguity.py``).
 
     Returns
     -------
@@ -806,7 +824,7 @@ def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene"):
             raise ParameterError(f"layers[{k}] must be (disparity, texture, box), got {spec!r}") from None
         disparities.append(_validate.finite_float(f"layers[{k}] disparity", disparity))
         _validate.one_of(f"layers[{k}] texture", texture, tuple(TEXTURES))
-    period, seam = _period(size, n_views, disparities)
+    period, seam = _period(size, n_views, disparities if textures_for is None else _disparity_list(textures_for))
     planes = []
     for k, (disparity, texture, box) in enumerate(specs):
         colour = TEXTURES[texture](rng, period, seam)

@@ -647,15 +647,16 @@ def _period(size, n_views, disparities, margin=64):
     return period, (size + period) // 2
 
 
-def _disparity_list(values, name="textures_for"):
-    """``values`` as a non-empty list of finite floats, or a :class:`ParameterError` naming ``name``."""
+def _textures_for(values):
+    """:func:`layered_scene`'s ``textures_for`` as a non-empty list of finite floats, or a
+    :class:`ParameterError` naming it."""
     try:
         values = list(values)
     except TypeError:
-        raise ParameterError(f"{name} must be a sequence of disparities, got {values!r}") from None
+        raise ParameterError(f"textures_for must be a sequence of disparities, got {values!r}") from None
     if not values:
-        raise ParameterError(f"{name} must hold at least one disparity")
-    return [_validate.finite_float(f"{name}[{k}]", value) for k, value in enumerate(values)]
+        raise ParameterError("textures_for must hold at least one disparity")
+    return [_validate.finite_float(f"textures_for[{k}]", value) for k, value in enumerate(values)]
 
 
 def _check(n_views, size, seed):
@@ -824,7 +825,7 @@ def layered_scene(layers, n_views=8, size=256, seed=0, name="layered scene", *, 
             raise ParameterError(f"layers[{k}] must be (disparity, texture, box), got {spec!r}") from None
         disparities.append(_validate.finite_float(f"layers[{k}] disparity", disparity))
         _validate.one_of(f"layers[{k}] texture", texture, tuple(TEXTURES))
-    period, seam = _period(size, n_views, disparities if textures_for is None else _disparity_list(textures_for))
+    period, seam = _period(size, n_views, disparities if textures_for is None else _textures_for(textures_for))
     planes = []
     for k, (disparity, texture, box) in enumerate(specs):
         colour = TEXTURES[texture](rng, period, seam)

@@ -114,6 +114,7 @@ def judge_case(case, moved):
         return []
     lf = case.lightfield
     estimate = lfa.estimate_disparity(lf)
+    differ = max(views_differ(case, world) for world in worlds)
     rows = []
     for slope in case.slopes:
         naive = lfa.refocus(lf, slope)
@@ -130,7 +131,7 @@ def judge_case(case, moved):
         rows.append({
             "case": case.name, "split": case.split, "slope": slope,
             "worlds": ", ".join(world.name.rsplit(" ", 1)[-1] for world in worlds),
-            "differ": max(views_differ(case, world) for world in worlds),
+            "differ": differ,
             "aliased": float(truth.mean()), "determinable": float(determinable.mean()),
             "unfindable": float((truth & ~determinable).mean()),
             "ambiguous": float(ambiguous.mean()), "plain": plain, "judged": judged,
@@ -138,8 +139,8 @@ def judge_case(case, moved):
                        for m, t in ((mask, truth), (mask[known], determinable[known]))],
             "gain": (_psnr_gain(result.image, naive, reference, truth),
                      _psnr_gain(result.image, naive, reference, determinable)),
-            "images": (naive, reference, worlds[int(np.argmin([w.truth(slope, naive).mean() for w in worlds]))]
-                       .reference(slope), result.image, truth, determinable, mask),
+            "images": (naive, reference, worlds[int(np.argmin([other.mean() for other in others]))].reference(slope),
+                       result.image, truth, determinable, mask),
         })
     return rows
 

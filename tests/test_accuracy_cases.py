@@ -165,10 +165,10 @@ def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physic
 
 def test_a_checker_wall_moved_by_a_period_of_its_texture_gives_the_same_views_but_not_the_same_aliasing():
     """Why some of the benchmark's truth no method can find (``benchmarks/periodic_ambiguity.py``): fresh
-    scene 2414 (7x7 views, bricks at -2 before a checker wall of 3 px cells at 3.9) gives bit-identical views
-    with the wall at -2.1, a period (6 px per view step) nearer, whose dense aperture sees the wall nearly in
-    focus at -2: half the image aliased as drawn, none with the wall a period off. Moved by 4 px per view
-    step instead, the views differ."""
+    scene 2414 (7x7 views, bricks at -2 before a checker wall of 3 px cells at 3.9) gives the same views (to
+    float rounding) with the wall at -2.1, a period (6 px per view step) nearer, whose dense aperture sees
+    the wall nearly in focus at -2: half the image aliased as drawn, none with the wall a period off. Moved
+    by 4 px per view step instead, the views differ."""
     from functools import partial
 
     from periodic_ambiguity import alias_worlds

@@ -193,16 +193,23 @@ def synthetic_cases(size=256):
     return cases
 
 
+def _covering_moved(layers, shift, **scene):
+    """The :func:`layered_scene` of ``layers`` (``scene``: its other arguments) with the last layer, the one
+    covering the view, moved by ``shift`` disparity and the textures drawn for ``layers`` as given; and the
+    layers as moved."""
+    *front, (disparity, texture, box) = layers
+    moved = [*front, (disparity + float(shift), texture, box)]
+    return layered_scene(moved, textures_for=[d for d, _, _ in layers], **scene), moved
+
+
 def checkerboard_case(size=256, covering_shift=0.0):
     """The holdout's noise square at 4 before a checkerboard wall at -3, 3x3 views.
 
     ``covering_shift``: the wall moved by that much disparity, its texture the same (``periodic_ambiguity.py``).
     """
     layers = [(4.0, "noise", (0.3, 0.7, 0.3, 0.7)), (-3.0, "checker", None)]
-    moved = layers[:-1] + [(-3.0 + float(covering_shift), "checker", None)]
-    scene = layered_scene(moved, n_views=3, size=size, seed=15, name="periodic wall",
-                          textures_for=[d for d, _, _ in layers])
-    name = "noise over a checkerboard, 3x3" + (f", the wall at {-3.0 + covering_shift:+.1f}" if covering_shift else "")
+    scene, moved = _covering_moved(layers, covering_shift, n_views=3, size=size, seed=15, name="periodic wall")
+    name = "noise over a checkerboard, 3x3" + (f", the wall at {moved[-1][0]:+.1f}" if covering_shift else "")
     return _synthetic(name, "holdout", scene, [4.0, -3.0],
                       "periodic texture: its disparity is ambiguous to within a period")
 
@@ -306,11 +313,8 @@ def fresh_case(seed, split, size=256, covering_shift=0.0):
     ``covering_shift``: the last layer (the one covering the view) moved by that much disparity, the
     textures, camera and slopes those of the scene as drawn (``periodic_ambiguity.py``)."""
     draw = fresh_draw(seed)
-    layers = list(draw.layers)
-    if covering_shift:
-        layers[-1] = (layers[-1][0] + float(covering_shift),) + layers[-1][1:]
-    scene = layered_scene(layers, n_views=draw.n_views, size=size, seed=seed, name=f"fresh {seed}",
-                          textures_for=[d for d, _, _ in draw.layers])
+    scene, layers = _covering_moved(draw.layers, covering_shift, n_views=draw.n_views, size=size, seed=seed,
+                                    name=f"fresh {seed}")
     name = f"fresh {seed}, {draw.n_views}x{draw.n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
     camera = draw.camera
     notes = "camera: " + (", ".join(f"{k} {v:.3g}" if isinstance(v, float) else k for k, v in camera.items())

@@ -47,6 +47,18 @@ def command_line():
     return " ".join([".venv/bin/python"] + [arg if " " not in arg else repr(arg) for arg in sys.argv])
 
 
+def detection_counts(mask, truth):
+    """``(true positives, false positives, false negatives)`` of the detection ``mask`` against ``truth``."""
+    return (int(np.count_nonzero(mask & truth)), int(np.count_nonzero(mask & ~truth)),
+            int(np.count_nonzero(~mask & truth)))
+
+
+def pooled_f1(counts):
+    """F1 of detections taken together: their :func:`detection_counts` summed (every slope's pixels)."""
+    tp, fp, fn = np.sum(counts, axis=0)
+    return float(2 * tp / max(2 * tp + fp + fn, 1))
+
+
 def table(header, rows):
     """A markdown table."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]

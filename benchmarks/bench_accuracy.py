@@ -45,7 +45,7 @@ import numpy as np
 import napari_lfalias as lfa
 from napari_lfalias import metrics
 
-from _harness import kept_notes, table, write_report
+from _harness import detection_counts, kept_notes, pooled_f1, table, write_report
 from accuracy_cases import all_cases
 
 ANALYTIC_T = 0.005
@@ -79,8 +79,7 @@ def _scores(image, reference, regions):
 
 def _detection(score, mask, truth):
     out = {"auc": float("nan"), "f1": metrics.precision_recall_f1(mask, truth).f1,
-           "counts": (int(np.count_nonzero(mask & truth)), int(np.count_nonzero(mask & ~truth)),
-                      int(np.count_nonzero(~mask & truth)))}
+           "counts": detection_counts(mask, truth)}
     if truth.any() and (~truth).any():
         out["auc"] = metrics.roc_auc(score, truth)
     return out
@@ -125,10 +124,7 @@ def evaluate(case, slope, images_dir=None):
 def _pooled_f1(items):
     """F1 of the detections of ``items`` taken together: their pixels counted over every slope."""
     counts = [i["counts"] for i in items if i["counts"] is not None]
-    if not counts:
-        return "-"
-    tp, fp, fn = np.sum(counts, axis=0)
-    return f"{2 * tp / max(2 * tp + fp + fn, 1):+.2f}"
+    return f"{pooled_f1(counts):+.2f}" if counts else "-"
 
 
 def _default_loses(rows, margin=0.1):

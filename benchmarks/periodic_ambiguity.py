@@ -41,8 +41,9 @@ import numpy as np
 import napari_lfalias as lfa
 from napari_lfalias import metrics
 
-from _harness import kept_notes, table, write_report
+from _harness import detection_counts, kept_notes, pooled_f1, table, write_report
 from accuracy_cases import FRESH_SEEDS, checkerboard_case, fresh_case, fresh_draw
+from bench_accuracy import MANY_ALIASED
 
 #: A checker's period along each axis is two cells; the benchmark's cells are 3 to 6 px
 #: (``napari_lfalias.synthetic.TEXTURES["checker"]``), so these are the shifts (px per view step) tried first.
@@ -55,8 +56,6 @@ PERIODS = (-2, -1, 1, 2)
 #: effects (fresh scene 1204, Bayer mosaic and over-exposure: 1.0e-3), is a fraction of the benchmark's read
 #: noise alone (1e-3 to 5e-3), where a shift that is not a period changes them by 0.1 or more.
 SAME_VIEWS_ATOL = 2e-3
-#: The share of aliased pixels from which a slope counts in the means of F1 (as ``bench_accuracy.py``'s).
-MANY_ALIASED = 0.01
 
 
 def views_differ(case, other):
@@ -135,19 +134,13 @@ def judge_case(case, moved):
             "aliased": float(truth.mean()), "determinable": float(determinable.mean()),
             "unfindable": float((truth & ~determinable).mean()),
             "ambiguous": float(ambiguous.mean()), "plain": plain, "judged": judged,
-            "counts": [(int(np.count_nonzero(m & t)), int(np.count_nonzero(m & ~t)), int(np.count_nonzero(~m & t)))
-                       for m, t in ((mask, truth), (mask[known], determinable[known]))],
+            "counts": [detection_counts(mask, truth), detection_counts(mask[known], determinable[known])],
             "gain": (_psnr_gain(result.image, naive, reference, truth),
                      _psnr_gain(result.image, naive, reference, determinable)),
             "images": (naive, reference, worlds[int(np.argmin([other.mean() for other in others]))].reference(slope),
                        result.image, truth, determinable, mask),
         })
     return rows
-
-
-def _pooled(rows, which):
-    tp, fp, fn = np.sum([row["counts"][which] for row in rows], axis=0)
-    return 2 * tp / max(2 * tp + fp + fn, 1)
 
 
 def summary(rows):
@@ -165,7 +158,7 @@ def summary(rows):
                                           for key in ("aliased", "determinable", "ambiguous", "unfindable")),
                     *(f"{np.mean([getattr(r[truth], score) for r in chosen]):.2f}"
                       for score in ("recall", "f1") for truth in ("plain", "judged")),
-                    f"{_pooled(chosen, 0):.2f}", f"{_pooled(chosen, 1):.2f}"])
+                    *(f"{pooled_f1([r['counts'][which] for r in chosen]):.2f}" for which in (0, 1))])
     return table(["slopes", "n", "aliased", "determinable", "ambiguous", "aliased, not determinable", "recall",
                   "recall, determinable", "mean F1", "mean F1, determinable", "pooled F1", "pooled F1, determinable"],
                  out)

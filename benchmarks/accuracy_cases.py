@@ -51,7 +51,8 @@ disparity. Cases are split:
   (scene 2216) to find the last of them; fresh-u (seeds 2300-2319) was
   first run at stop 50, before and after it (``results/accuracy_fresh_u.md``);
   fresh-v (seeds 2400-2419) at the start of stop 51, before any change
-  (``results/accuracy_fresh_v.md``).
+  (``results/accuracy_fresh_v.md``); fresh-w (seeds 2500-2519) at the
+  start of stop 52, before any change (``results/accuracy_fresh_w.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -255,7 +256,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-n": range(1600, 1620), "fresh-o": range(1700, 1720),
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
                "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
-               "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420)}
+               "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420),
+               "fresh-w": range(2500, 2520)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -146,6 +146,22 @@ def test_a_case_seen_through_a_camera_keeps_the_reference_of_its_optics(three_la
     np.testing.assert_allclose(case.comb(0.0), lfa.refocus(clean, 0.0), rtol=0, atol=2e-6)
 
 
+def test_a_camera_records_no_light_below_zero_in_its_views_nor_in_their_reference():
+    """The dark lines of a lines texture cross below 0 where they meet (a random texture's tails do too): the
+    sensor clips every view's samples at 0, and the sum of the aperture's rays there as well; without a
+    camera the case keeps the scene's own views and reference."""
+    scene = layered_scene([(1.0, "lines", None)], n_views=3, size=64, seed=0)
+    raw = scene.reference(0.5, interpolation="exact")
+    assert scene.lightfield.data.min() < -0.1 and (raw < 0).mean() > 0.01  # the trap is real (measured 4.5 %)
+    case = accuracy_cases._synthetic("lines, noisy", "tune", scene, [0.5], read_noise=0.004, seed=2)
+    assert case.lightfield.data.min() >= 0
+    np.testing.assert_array_equal(case.reference(0.5), np.maximum(raw, 0))
+    assert case.comb(0.5).min() >= 0
+    ideal = accuracy_cases._synthetic("lines", "tune", scene, [0.5])
+    np.testing.assert_array_equal(ideal.lightfield.data, scene.lightfield.data)
+    np.testing.assert_array_equal(ideal.reference(0.5), raw)
+
+
 @pytest.mark.parametrize("seed", [300, 415, 500])
 def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physical(seed):
     """A random scene is the same whenever its seed is drawn (so a split means the same cases on any

@@ -128,8 +128,8 @@ def _synthetic(name, split, scene, slopes, notes="", **camera):
     weighted refocus of the noise-free views, which the truth of aliasing
     then counted as aliasing). Through any camera the reference is clipped at
     0, as the views' samples are (before stop 52 it was not: the tails of the
-    noise textures, below 0 in 0.1-3 % of a scene's samples, were clipped in
-    the views only); without one it is the scene's own, as the views are.
+    noise textures and crossing dark lines, below 0 in up to 3.5 % of a
+    scene's samples, were clipped in the views only); without one it is the scene's own, as the views are.
     """
     lf = capture(scene.lightfield, **camera) if camera else scene.lightfield
     lf = lfa.LightField(lf.data, lf.positions, {"source": name}, weights=lf.weights)  # no ground truth in meta

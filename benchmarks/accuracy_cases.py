@@ -129,7 +129,8 @@ def _synthetic(name, split, scene, slopes, notes="", **camera):
     then counted as aliasing). Through any camera the reference is clipped at
     0, as the views' samples are (before stop 52 it was not: the tails of the
     noise textures and crossing dark lines, below 0 in up to 3.5 % of a
-    scene's samples, were clipped in the views only); without one it is the scene's own, as the views are.
+    scene's samples, were clipped in the views only); without one it is the
+    scene's own, as the views are.
     """
     lf = capture(scene.lightfield, **camera) if camera else scene.lightfield
     lf = lfa.LightField(lf.data, lf.positions, {"source": name}, weights=lf.weights)  # no ground truth in meta

@@ -52,7 +52,9 @@ disparity. Cases are split:
   first run at stop 50, before and after it (``results/accuracy_fresh_u.md``);
   fresh-v (seeds 2400-2419) at the start of stop 51, before any change
   (``results/accuracy_fresh_v.md``); fresh-w (seeds 2500-2519) at the
-  start of stop 52, before any change (``results/accuracy_fresh_w.md``).
+  start of stop 52, before any change (``results/accuracy_fresh_w.md``);
+  fresh-x (seeds 2600-2619) at the start of stop 53, before any change
+  (``results/accuracy_fresh_x.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -263,7 +265,7 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
                "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
                "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420),
-               "fresh-w": range(2500, 2520)}
+               "fresh-w": range(2500, 2520), "fresh-x": range(2600, 2620)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

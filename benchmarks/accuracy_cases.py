@@ -54,7 +54,9 @@ disparity. Cases are split:
   (``results/accuracy_fresh_v.md``); fresh-w (seeds 2500-2519) at the
   start of stop 52, before any change (``results/accuracy_fresh_w.md``);
   fresh-x (seeds 2600-2619) at the start of stop 53, before any change
-  (``results/accuracy_fresh_x.md``).
+  (``results/accuracy_fresh_x.md``), then used (scene 2609) to find the
+  periodic square the views show in front at its outline
+  (``results/periodic_outlines.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture

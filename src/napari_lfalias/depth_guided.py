@@ -1061,7 +1061,7 @@ class DepthGuide:
         over the naive refocus where aliased; the true disparity's rendering
         +23.7). With the rule: +13.7.
         """
-        from .baselines import MIN_SURE_PIXELS, SURE_CONFIDENCE
+        from .baselines import MIN_SURE_PIXELS, SURE_CONFIDENCE, _depth_edges
 
         disparity, confidence = self.estimate
         moved = moved_to != disparity
@@ -1069,7 +1069,8 @@ class DepthGuide:
             return moved_to
         # one surface's pixels: no step of the estimate between them (a periodic wall moved with the square in
         # front of it are two)
-        labels, count = ndimage.label(moved & ~_steps(disparity, OUTLINE_SAME_SURFACE), structure=np.ones((3, 3), bool))
+        labels, count = ndimage.label(moved & ~_depth_edges(disparity, OUTLINE_SAME_SURFACE),
+                                      structure=np.ones((3, 3), bool))
         if count == 0:
             return moved_to
         _, (nearest_y, nearest_x) = ndimage.distance_transform_edt(labels == 0, return_indices=True)
@@ -1603,19 +1604,6 @@ def _unit_scaled(lf):
     unit = unit_scale(peak)
     scaled = LightField(lf.data * np.float32(unit), lf.positions, lf.meta, weights=lf.weights)
     return scaled, unit
-
-
-def _steps(disparity, jump):
-    """``(Y, X)`` bool: the pixels of ``disparity`` whose value differs from a 4-neighbour's by more than ``jump``."""
-    step = np.zeros(disparity.shape, bool)
-    for axis in (0, 1):
-        jumps = np.abs(np.diff(disparity, axis=axis)) > jump
-        before = [slice(None)] * 2
-        after = [slice(None)] * 2
-        before[axis], after[axis] = slice(None, -1), slice(1, None)
-        step[tuple(before)] |= jumps
-        step[tuple(after)] |= jumps
-    return step
 
 
 def _by_surface(mask, among):

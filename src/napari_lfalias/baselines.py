@@ -348,37 +348,39 @@ def _hidden_views_explain_larger_first(views, positions, disparity, confidence, 
     spreads can. ``fallback`` where no pixel is that near a step.
     """
     positions = np.asarray(positions, np.float64)
-    larger, smaller, near_a_step = _hiding_fronts(positions, disparity)
-    pixels = _sure_pixels(near_a_step, confidence, max_pixels)
+    larger, larger_near = _hiding_front(positions, disparity, True)
+    smaller, smaller_near = _hiding_front(positions, disparity, False)
+    pixels = _sure_pixels(larger_near | smaller_near, confidence, max_pixels)
     if len(pixels) == 0:
         return fallback
     return bool(_spreads(views, positions, disparity, pixels, larger).mean()
                 <= _spreads(views, positions, disparity, pixels, smaller).mean())
 
 
-def _hiding_fronts(positions, disparity):
-    """``(larger, smaller, near_a_step)``, each ``(Y, X)``: the disparity of the surface that may hide each
-    pixel's samples if larger disparities are in front (the largest within reach, where at least
-    :data:`HIDING_STEP` larger; the pixel's own elsewhere), the same if smaller ones are, and where either
-    is (:func:`_hidden_views_explain_larger_first`). The reach: the disparities' range times the
-    aperture's half width, at most :data:`HIDING_REACH_CAP` px."""
+def _hiding_front(positions, disparity, larger_first):
+    """``(front, near)``, each ``(Y, X)``: the disparity of the surface that may hide each pixel's samples in
+    the order ``larger_first`` (the largest within reach if larger disparities are in front, else the smallest,
+    where at least :data:`HIDING_STEP` nearer; the pixel's own elsewhere), and where there is one. The reach:
+    the disparities' range times the aperture's half width, at most :data:`HIDING_REACH_CAP` px."""
     half_width = float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
     low, high = np.percentile(disparity, [1, 99])
     reach = int(min(HIDING_REACH_CAP, np.ceil(half_width * (high - low)) + 1))
-    largest = ndimage.maximum_filter(disparity, 2 * reach + 1)
-    smallest = ndimage.minimum_filter(disparity, 2 * reach + 1)
-    larger_near, smaller_near = largest - disparity > HIDING_STEP, disparity - smallest > HIDING_STEP
-    return (np.where(larger_near, largest, disparity), np.where(smaller_near, smallest, disparity),
-            larger_near | smaller_near)
+    if larger_first:
+        extreme = ndimage.maximum_filter(disparity, 2 * reach + 1)
+        near = extreme - disparity > HIDING_STEP
+    else:
+        extreme = ndimage.minimum_filter(disparity, 2 * reach + 1)
+        near = disparity - extreme > HIDING_STEP
+    return np.where(near, extreme, disparity), near
 
 
 def _hidden_spread(views, positions, disparity, pixels, larger_first):
     """The mean spread of the views at ``pixels`` (``(m, 2)``), each sampled at its own ``disparity`` without
     the samples the surface in front of it within reach hides, in the order ``larger_first``
-    (:func:`_hiding_fronts`): how well that disparity map, in that order, explains the views there."""
+    (:func:`_hiding_front`): how well that disparity map, in that order, explains the views there."""
     positions = np.asarray(positions, np.float64)
-    larger, smaller, _ = _hiding_fronts(positions, disparity)
-    return float(_spreads(views, positions, disparity, pixels, larger if larger_first else smaller).mean())
+    front, _ = _hiding_front(positions, disparity, larger_first)
+    return float(_spreads(views, positions, disparity, pixels, front).mean())
 
 
 def depth_aware_refocus(lf, slope, disparity, *, nearer="auto", max_layers=MAX_LAYERS):

@@ -1083,23 +1083,23 @@ class DepthGuide:
             if sizes[k] < MIN_SURE_PIXELS:
                 continue
             window = tuple(slice(max(part.start - margin, 0), part.stop + margin) for part in box)
-            undone[k] = self._in_front_at_outline(labels[window] == k, moved_to[window], moved[window],
-                                                  sure[window], window, moved_to)
+            undone[k] = self._in_front_at_outline(labels[window] == k, window, moved_to, moved, sure)
         if not undone.any():
             return moved_to
         return np.where(undone[labels], disparity, moved_to).astype(np.float32)
 
-    def _in_front_at_outline(self, region, moved_to, moved, sure, window, moved_everywhere):
-        """Whether the moved ``region`` (bool, over ``window`` of the image, as ``moved_to``, ``moved`` and
-        ``sure`` are) is shown in front of the sure surface along its outline: its estimate has it so and its
-        move not, and the views at the outline fit the estimate better than the move, each with the samples
-        its nearer surfaces hide left out (:meth:`_fronts_kept`)."""
+    def _in_front_at_outline(self, region, window, moved_to, moved, sure):
+        """Whether the moved ``region`` (bool, over ``window`` of the image; ``moved_to``, ``moved`` and
+        ``sure``: over the whole image, as :meth:`_fronts_kept` has them) is shown in front of the sure surface
+        along its outline: its estimate has it so and its move not, and the views at the outline fit the
+        estimate better than the move, each with the samples its nearer surfaces hide left out."""
         from .baselines import CLEAR_SPREAD_RATIO, MIN_SURE_PIXELS, _hidden_spread
 
         disparity = self.estimate[0]
         local = disparity[window]
         centre = float(np.median(local[region]))
-        target = float(np.median(moved_to[region]))
+        target = float(np.median(moved_to[window][region]))
+        moved, sure = moved[window], sure[window]
         grown = ndimage.binary_dilation(region, iterations=OUTLINE_GROW_PX)
         same, _ = ndimage.label(region | (grown & ~moved & (np.abs(local - centre) <= OUTLINE_SAME_SURFACE)),
                                 structure=np.ones((3, 3), bool))
@@ -1117,7 +1117,7 @@ class DepthGuide:
         pixels = np.argwhere(band) + np.array([part.start for part in window])
         pixels = pixels[:: max(1, len(pixels) // 20_000)].astype(np.int64)
         views, positions = np.ascontiguousarray(self.lf.views()), np.ascontiguousarray(self.lf.flat_positions())
-        as_moved = moved_everywhere.astype(np.float64)
+        as_moved = moved_to.astype(np.float64)
         as_estimated = as_moved.copy()
         as_estimated[window][region] = local[region]
         at_estimate = _hidden_spread(views, positions, as_estimated, pixels, larger_first)

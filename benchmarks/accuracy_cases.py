@@ -56,7 +56,8 @@ disparity. Cases are split:
   fresh-x (seeds 2600-2619) at the start of stop 53, before any change
   (``results/accuracy_fresh_x.md``), then used (scene 2609) to find the
   periodic square the views show in front at its outline
-  (``results/periodic_outlines.md``).
+  (``results/periodic_outlines.md``). fresh-y (seeds 2700-2719) at the
+  start of stop 54, before any change (``results/accuracy_fresh_y.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -267,7 +268,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-p": range(1800, 1820), "fresh-q": range(1900, 1920),
                "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
                "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420),
-               "fresh-w": range(2500, 2520), "fresh-x": range(2600, 2620)}
+               "fresh-w": range(2500, 2520), "fresh-x": range(2600, 2620),
+               "fresh-y": range(2700, 2720)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -70,30 +70,36 @@ def changed_slopes(split):
                     rendered[on] = DepthGuide(case.lightfield, estimate)._rendered_disparity(slope)
             if np.array_equal(rendered[False], rendered[True]):
                 continue
-            naive, reference = lfa.refocus(case.lightfield, slope), case.reference(slope)
-            aliased = case.truth(slope, naive)
-            row = {"split": split, "case": case.name.split(":")[0], "slope": slope, "aliased": float(aliased.mean())}
-            for on in (False, True):
-                with rule(on):
-                    image = lfa.reduce_aliasing(case.lightfield, slope, disparity=estimate).image
-                row[on] = _gains(image, naive, reference, aliased)
-            rows.append(row)
-            print(f"{split} {row['case']} {slope:+.2f}: without " + " / ".join(f"{v:+.2f}" for v in row[False])
-                  + " | with " + " / ".join(f"{v:+.2f}" for v in row[True]), flush=True)
+            rows.append(compared(split, case, slope, rule, {False: estimate, True: estimate}))
     return rows, looked_at
+
+
+def compared(split, case, slope, toggle, estimates):
+    """The row of one slope: the default reduction's gains with the rule off and on (``toggle(on)``, a
+    context manager; ``estimates[on]``, the disparity given to each)."""
+    naive, reference = lfa.refocus(case.lightfield, slope), case.reference(slope)
+    aliased = case.truth(slope, naive)
+    row = {"split": split, "case": case.name.split(":")[0], "slope": slope, "aliased": float(aliased.mean())}
+    for on in (False, True):
+        with toggle(on):
+            image = lfa.reduce_aliasing(case.lightfield, slope, disparity=estimates[on]).image
+        row[on] = _gains(image, naive, reference, aliased)
+    print(f"{split} {row['case']} {slope:+.2f}: without " + " / ".join(f"{v:+.2f}" for v in row[False])
+          + " | with " + " / ".join(f"{v:+.2f}" for v in row[True]), flush=True)
+    return row
 
 
 def _cells(gains):
     return " / ".join("-" if not np.isfinite(value) else f"{value:+.2f}" for value in gains)
 
 
-def summary(rows, looked_at):
-    """The summary paragraph: how many slopes changed and what the rule did on them."""
+def summary(rows, looked_at, changes="the rendered disparity"):
+    """The summary paragraph: on how many slopes the rule ``changes`` something and what it did on them."""
     if not rows:
         return f"The rule changes none of the {looked_at} slopes."
     before, after = (np.array([row[on] for row in rows]) for on in (False, True))
     has_aliased = np.isfinite(before[:, 1])
-    return (f"The rule changes the rendered disparity on {len(rows)} of {looked_at} slopes. Where aliased "
+    return (f"The rule changes {changes} on {len(rows)} of {looked_at} slopes. Where aliased "
             f"({int(has_aliased.sum())} of them have aliased pixels): {np.nanmean(before[:, 1]):+.2f} -> "
             f"{np.nanmean(after[:, 1]):+.2f} dB over the naive refocus on average, at least +3 dB on "
             f"{int(np.sum(before[has_aliased, 1] >= 3))} -> {int(np.sum(after[has_aliased, 1] >= 3))}. The largest "
@@ -104,17 +110,23 @@ def summary(rows, looked_at):
 
 
 def per_slope(rows):
+    """The changed slopes, the largest gain where aliased first."""
     ordered = sorted(rows, key=lambda row: -(np.nan_to_num(row[True][1]) - np.nan_to_num(row[False][1])))
     return table(("split", "case", "slope", "aliased", "without: all / aliased / clean", "with: all / aliased / clean"),
                  [(row["split"], row["case"], f"{row['slope']:+.2f}", f"{100 * row['aliased']:.1f} %",
                    _cells(row[False]), _cells(row[True])) for row in ordered])
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="benchmarks/results/periodic_outlines.md")
+def arguments(doc, out):
+    """``--out`` (default ``out``) and ``--splits`` of a script whose docstring is ``doc``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--out", default=out)
     parser.add_argument("--splits", default=",".join(SPLITS), help="comma-separated splits (default: all)")
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main():
+    args = arguments(__doc__, "benchmarks/results/periodic_outlines.md")
     start = time.perf_counter()
     rows, looked_at = [], 0
     for split in args.splits.split(","):

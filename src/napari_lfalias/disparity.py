@@ -35,7 +35,11 @@ Method
    level (about 0.5 px of motion of the outermost view per slope step
    there); at full resolution every 32 px tile sweeps only the slopes
    that the coarse estimate of the tile and its neighbours allows, with
-   the same step at full resolution.
+   the same step at full resolution. A tile where the coarse level loses
+   the texture (fine stripes or checkers near its Nyquist rate, whose
+   coarse cost is flat) sweeps every slope, and a slope beyond those its
+   neighbours allow wins there only where the views clearly prefer it
+   (:data:`LOST_TEXTURE_SHARE`).
 4. **Aggregation.** Per slope, the cost relative to each pixel's best
    (logarithmic, truncated, so that a few strongly textured pixels do not
    out-vote the rest of a window) is smoothed by a guided filter (He et
@@ -126,6 +130,19 @@ AMBIGUOUS_GAP = 0.25
 #: 0.3: at 0.3 a checkerboard wall at disparity 4.9 seen by 3x3 views widened the range to +-20 and came out
 #: at -19.1, -7.1 or 16.9 on 80 % of its pixels; at 0.5 the other layers set the range and 94 % is right.
 COARSE_SURE = 0.5
+#: A texture the coarse level cannot see: fine stripes or checkers near its Nyquist rate keep under this
+#: share of their local variance there (in the reference view), and their coarse cost is flat ...
+LOST_TEXTURE_KEPT = 0.15
+#: ... where the full-resolution variance is at least this (luminance scaled to a bright level of 1; sensor
+#: noise alone stays below) ...
+LOST_TEXTURE_VARIANCE = 1e-3
+#: ... and a tile where at least this share of the coarse pixels is such a texture, unsure, sweeps every
+#: slope: the sure pixels around it say nothing of its depth (fresh 2613: a stripes square at 4.1 in front
+#: of a wall at -2.4 never swept beyond -1, and rendered at an alias). A slope beyond those the sure pixels
+#: around suggest wins there only where its aggregated cost is below theirs by more than
+#: :data:`AMBIGUOUS_GAP`: a periodic wall's aliases fit alike, and picking among them by the noise put a
+#: checker wall's pixels a period off (fresh 1415).
+LOST_TEXTURE_SHARE = 0.05
 #: A view agrees with the centre of the aperture where its squared feature difference is at most this
 #: share of the local texture energy (:class:`FocusTest`) ...
 IN_FOCUS_COST = 0.1
@@ -913,6 +930,71 @@ def _reduce_views(lum, valid, levels):
     return lum, valid
 
 
+def _lost_texture(reference, coarse_reference, coarse_level, radius=2):
+    """``(h, w)`` bool: coarse pixels whose texture the coarse level loses.
+
+    Where the reference view's luminance ``reference (Y, X)`` varies (by at
+    least :data:`LOST_TEXTURE_VARIANCE` around each coarse pixel) and its
+    reduction ``coarse_reference (h, w)`` keeps under :data:`LOST_TEXTURE_KEPT`
+    of that variance (over ``radius`` coarse pixels): stripes or checkers
+    near the coarse level's Nyquist rate, whose coarse cost is flat.
+    """
+    def local_variance(image, r):
+        mean = _box(image, r)
+        return np.maximum(_box(image * image, r) - mean * mean, 0.0)
+
+    scale = 2 ** coarse_level
+    height, width = coarse_reference.shape
+    fine = local_variance(reference, radius * scale + scale // 2)[::scale, ::scale][:height, :width]
+    kept = local_variance(coarse_reference, radius)
+    return (fine >= LOST_TEXTURE_VARIANCE) & (kept < LOST_TEXTURE_KEPT * fine)
+
+
+def _lost_tiles(lost, coarse_level, shape, tile):
+    """``(TY, TX)`` bool: the tiles where at least :data:`LOST_TEXTURE_SHARE` of the coarse pixels are
+    ``lost`` (:func:`_lost_texture`)."""
+    scale = 2 ** coarse_level
+    n_ty, n_tx = -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
+    out = np.zeros((n_ty, n_tx), bool)
+    for ty in range(n_ty):
+        for tx in range(n_tx):
+            inner = lost[ty * tile[0] // scale:-(-(ty + 1) * tile[0] // scale),
+                         tx * tile[1] // scale:-(-(tx + 1) * tile[1] // scale)]
+            out[ty, tx] = inner.size > 0 and inner.mean() >= LOST_TEXTURE_SHARE
+    return out
+
+
+def _clearly_beyond(aggregated, near, tiles, tile, slopes, positions):
+    """Where ``tiles (TY, TX)`` holds, pixels keep a slope beyond those their tile's ``near (m, TY, TX)``
+    names only where every view sees the pixel inside the image at that slope and its ``aggregated
+    (m, Y, X)`` cost is below the least of the near slopes' by more than :data:`AMBIGUOUS_GAP`; elsewhere
+    the costs beyond are set to :data:`COST_CAP` (in place).
+
+    Near the image's border a far slope pushes the outer views out of the
+    image, and what is left fits by that alone (fresh 314: the border rows of
+    a stripes wall at -3.7 came out at 12.5, the end of the range).
+    """
+    height, width = aggregated.shape[1:]
+    reach_y, reach_x = np.abs(positions).max(axis=0)
+    for ty, tx in zip(*np.nonzero(tiles)):
+        inside = near[:, ty, tx]
+        if not inside.any() or inside.all():
+            continue
+        ys, xs = slice(ty * tile[0], min((ty + 1) * tile[0], height)), slice(tx * tile[1], min((tx + 1) * tile[1], width))
+        block = aggregated[:, ys, xs]
+        beyond = block[~inside]
+        y = np.arange(ys.start, ys.stop)[:, None]
+        x = np.arange(xs.start, xs.stop)[None, :]
+        margin = np.minimum(np.minimum(y, height - 1 - y) / max(reach_y, 1e-9),
+                            np.minimum(x, width - 1 - x) / max(reach_x, 1e-9))  # the largest |slope| all views see
+        seen = np.abs(slopes[~inside])[:, None, None] <= margin[None]
+        beyond = np.where(seen, beyond, COST_CAP)
+        unclear = beyond.min(axis=0) >= block[inside].min(axis=0) - AMBIGUOUS_GAP
+        beyond[:, unclear] = COST_CAP
+        block[~inside] = beyond
+    return aggregated
+
+
 def _tile_slopes(coarse, coarse_level, shape, slopes, margin, tile):
     """``(m, TY, TX)``: the slopes each tile needs, from the coarse estimate over the tile and half a tile
     around it (NaN: not sure; a tile with nothing sure around it needs every slope), widened by ``margin``.
@@ -1066,11 +1148,21 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
         # a periodic texture's second fit stays in the sweep: the fine level must see both to say so
         second = np.where(sure & np.isfinite(c_alternative), c_alternative, np.nan)
         low_c, high_c = np.percentile(np.concatenate([coarse[sure], second[np.isfinite(second)]]), [0.5, 99.5])
-        slopes = slopes[(slopes >= low_c - margin) & (slopes <= high_c + margin)]
-        needed = _tile_slopes(np.stack([np.where(sure, coarse, np.nan), second]), level, shape, slopes,
-                              margin=margin, tile=TILE)
+        inside = (slopes >= low_c - margin) & (slopes <= high_c + margin)
+        near = np.zeros((len(slopes),) + _all_tiles(0, shape, TILE).shape[1:], bool)
+        near[inside] = _tile_slopes(np.stack([np.where(sure, coarse, np.nan), second]), level, shape,
+                                    slopes[inside], margin=margin, tile=TILE)
+        # a texture the coarse level cannot see: the sure pixels around it say little of its depth
+        ref = _reference_views(positions)[0]
+        lost = _lost_tiles(_lost_texture(lum[ref], small[ref], level) & ~sure, level, shape, TILE)
+        needed = near.copy()
+        needed[:, lost] = True
+        swept = np.flatnonzero(inside | needed.any(axis=(1, 2)))  # a grid without gaps (sub-step, slants)
+        span = slice(swept[0], swept[-1] + 1)
+        slopes, needed, near = slopes[span], needed[span], near[span]
     else:
         needed = _all_tiles(len(slopes), shape, TILE)
+        lost = None
     seconds["coarse"] = time.perf_counter() - clock
     yield (2, 5, "coarse sweep")
 
@@ -1082,6 +1174,8 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
     relative = _relative_cost(cost)
     guided = _GuidedFilter(guide, radius)
     aggregated = _aggregate(relative, needed, guided, radius)
+    if lost is not None and lost.any():
+        _clearly_beyond(aggregated, near, lost, TILE, slopes, positions)
     disparity, confidence, alternative = _winner(aggregated, slopes, step, cost)
     first = _filled(disparity, confidence, guide) if len(slopes) >= 3 else None
     shears = _shears(first) if first is not None else {}

@@ -980,7 +980,8 @@ def _clearly_beyond(aggregated, near, tiles, tile, slopes, positions):
         inside = near[:, ty, tx]
         if not inside.any() or inside.all():
             continue
-        ys, xs = slice(ty * tile[0], min((ty + 1) * tile[0], height)), slice(tx * tile[1], min((tx + 1) * tile[1], width))
+        ys = slice(ty * tile[0], min((ty + 1) * tile[0], height))
+        xs = slice(tx * tile[1], min((tx + 1) * tile[1], width))
         block = aggregated[:, ys, xs]
         beyond = block[~inside]
         y = np.arange(ys.start, ys.stop)[:, None]

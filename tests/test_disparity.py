@@ -431,6 +431,26 @@ def test_a_slope_the_lost_texture_adds_does_not_win_at_the_image_s_border_by_pus
     assert np.mean(np.abs(estimate.disparity[wall] + 3.7) < 0.5) >= 0.99
 
 
+def test_a_slope_beyond_the_near_ones_keeps_its_cost_only_where_it_is_clearly_better_and_seen_by_every_view():
+    from napari_lfalias.disparity import AMBIGUOUS_GAP, COST_CAP, _clearly_beyond
+
+    slopes = np.array([-2.0, -1.0, 0.0, 1.0, 2.0])
+    positions = np.array([[-1.0, -1.0], [1.0, 1.0]])  # the outer views 1 px per unit of slope away
+    near = np.zeros((5, 1, 1), bool)
+    near[1:3] = True  # the sure pixels around allow -1 and 0
+    aggregated = np.full((5, 16, 16), COST_CAP, np.float32)
+    aggregated[1] = 0.4
+    aggregated[4, 8, 8] = 0.4 - AMBIGUOUS_GAP - 0.05  # clearly better, 7 px from every edge: kept
+    aggregated[4, 8, 9] = 0.4 - AMBIGUOUS_GAP + 0.05  # better, not clearly: capped
+    aggregated[4, 1, 8] = 0.0  # clearly better, but at slope 2 the outer views fall outside 1 px from the edge
+    before = aggregated.copy()
+    _clearly_beyond(aggregated, near, np.ones((1, 1), bool), (16, 16), slopes, positions)
+    assert aggregated[4, 8, 8] == before[4, 8, 8]
+    assert aggregated[4, 8, 9] == COST_CAP and aggregated[4, 1, 8] == COST_CAP
+    assert np.array_equal(aggregated[1:3], before[1:3])  # the near slopes untouched
+    assert np.all(aggregated[[0, 3]] == COST_CAP)
+
+
 def test_the_texture_the_coarse_level_loses_is_fine_texture_not_coarse_texture_or_sensor_noise():
     from napari_lfalias.disparity import _lost_texture, _reduce_views
 

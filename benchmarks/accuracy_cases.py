@@ -56,8 +56,10 @@ disparity. Cases are split:
   fresh-x (seeds 2600-2619) at the start of stop 53, before any change
   (``results/accuracy_fresh_x.md``), then used (scene 2609) to find the
   periodic square the views show in front at its outline
-  (``results/periodic_outlines.md``). fresh-y (seeds 2700-2719) at the
-  start of stop 54, before any change (``results/accuracy_fresh_y.md``).
+  (``results/periodic_outlines.md``), and at stop 54 (scene 2613, with
+  fresh-t's 2211) to find the texture the estimator's coarse level loses
+  (``results/lost_texture.md``). fresh-y (seeds 2700-2719) at the start of
+  stop 54, before any change (``results/accuracy_fresh_y.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture

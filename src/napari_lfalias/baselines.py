@@ -348,8 +348,9 @@ def _hidden_views_explain_larger_first(views, positions, disparity, confidence, 
     spreads can. ``fallback`` where no pixel is that near a step.
     """
     positions = np.asarray(positions, np.float64)
-    larger, larger_near = _hiding_front(positions, disparity, True)
-    smaller, smaller_near = _hiding_front(positions, disparity, False)
+    reach = _hiding_reach(positions, disparity)
+    larger, larger_near = _hiding_front(disparity, reach, True)
+    smaller, smaller_near = _hiding_front(disparity, reach, False)
     pixels = _sure_pixels(larger_near | smaller_near, confidence, max_pixels)
     if len(pixels) == 0:
         return fallback
@@ -357,14 +358,19 @@ def _hidden_views_explain_larger_first(views, positions, disparity, confidence, 
                 <= _spreads(views, positions, disparity, pixels, smaller).mean())
 
 
-def _hiding_front(positions, disparity, larger_first):
-    """``(front, near)``, each ``(Y, X)``: the disparity of the surface that may hide each pixel's samples in
-    the order ``larger_first`` (the largest within reach if larger disparities are in front, else the smallest,
-    where at least :data:`HIDING_STEP` nearer; the pixel's own elsewhere), and where there is one. The reach:
-    the disparities' range times the aperture's half width, at most :data:`HIDING_REACH_CAP` px."""
+def _hiding_reach(positions, disparity):
+    """How far (px) a surface in front may hide a pixel's samples: the disparities' range (1st to 99th
+    percentile) times the aperture's half width, at most :data:`HIDING_REACH_CAP`."""
     half_width = float(np.abs(positions - positions.mean(axis=0)).max(initial=0.0))
     low, high = np.percentile(disparity, [1, 99])
-    reach = int(min(HIDING_REACH_CAP, np.ceil(half_width * (high - low)) + 1))
+    return int(min(HIDING_REACH_CAP, np.ceil(half_width * (high - low)) + 1))
+
+
+def _hiding_front(disparity, reach, larger_first):
+    """``(front, near)``, each ``(Y, X)``: the disparity of the surface that may hide each pixel's samples in
+    the order ``larger_first`` (the largest within ``reach`` px if larger disparities are in front, else the
+    smallest, where at least :data:`HIDING_STEP` nearer; the pixel's own elsewhere), and where there is one
+    (:func:`_hiding_reach`)."""
     if larger_first:
         extreme = ndimage.maximum_filter(disparity, 2 * reach + 1)
         near = extreme - disparity > HIDING_STEP
@@ -379,7 +385,7 @@ def _hidden_spread(views, positions, disparity, pixels, larger_first):
     the samples the surface in front of it within reach hides, in the order ``larger_first``
     (:func:`_hiding_front`): how well that disparity map, in that order, explains the views there."""
     positions = np.asarray(positions, np.float64)
-    front, _ = _hiding_front(positions, disparity, larger_first)
+    front, _ = _hiding_front(disparity, _hiding_reach(positions, disparity), larger_first)
     return float(_spreads(views, positions, disparity, pixels, front).mean())
 
 

@@ -420,9 +420,14 @@ def _tile_plan(needed, shape, tile, block_rows=SWEEP_BLOCK_ROWS):
     return (np.array(blocks, np.int64).reshape(-1, 4), np.array(first, np.int64), np.array(order, np.int64))
 
 
+def _tile_grid(shape, tile):
+    """``(TY, TX)``: how many tiles of ``tile`` px cover an image of ``shape`` (the last ones cut short)."""
+    return -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
+
+
 def _all_tiles(n_slopes, shape, tile):
     """``needed`` for a full sweep: every slope in every tile."""
-    return np.ones((n_slopes, -(-shape[0] // tile[0]), -(-shape[1] // tile[1])), bool)
+    return np.ones((n_slopes,) + _tile_grid(shape, tile), bool)
 
 
 def _sweep(features, valid, positions, slopes, needed, shape, tile, border_rule=False):
@@ -954,7 +959,7 @@ def _lost_tiles(lost, coarse_level, shape, tile):
     """``(TY, TX)`` bool: the tiles where at least :data:`LOST_TEXTURE_SHARE` of the coarse pixels are
     ``lost`` (:func:`_lost_texture`)."""
     scale = 2 ** coarse_level
-    n_ty, n_tx = -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
+    n_ty, n_tx = _tile_grid(shape, tile)
     out = np.zeros((n_ty, n_tx), bool)
     for ty in range(n_ty):
         for tx in range(n_tx):
@@ -1001,7 +1006,7 @@ def _tile_slopes(coarse, coarse_level, shape, slopes, margin, tile):
     around it (NaN: not sure; a tile with nothing sure around it needs every slope), widened by ``margin``.
     ``coarse`` is one map ``(h, w)`` or several ``(k, h, w)`` (the estimate and its alternatives)."""
     scale = 2 ** coarse_level
-    n_ty, n_tx = -(-shape[0] // tile[0]), -(-shape[1] // tile[1])
+    n_ty, n_tx = _tile_grid(shape, tile)
     needed = np.zeros((len(slopes), n_ty, n_tx), bool)
     coarse = coarse.reshape((-1,) + coarse.shape[-2:])
     height, width = coarse.shape[1:]
@@ -1150,7 +1155,7 @@ def iter_estimate_disparity(lf, disparity_range=None, *, radius=None, fill=True)
         second = np.where(sure & np.isfinite(c_alternative), c_alternative, np.nan)
         low_c, high_c = np.percentile(np.concatenate([coarse[sure], second[np.isfinite(second)]]), [0.5, 99.5])
         inside = (slopes >= low_c - margin) & (slopes <= high_c + margin)
-        near = np.zeros((len(slopes),) + _all_tiles(0, shape, TILE).shape[1:], bool)
+        near = np.zeros((len(slopes),) + _tile_grid(shape, TILE), bool)
         near[inside] = _tile_slopes(np.stack([np.where(sure, coarse, np.nan), second]), level, shape,
                                     slopes[inside], margin=margin, tile=TILE)
         # a texture the coarse level cannot see: the sure pixels around it say little of its depth

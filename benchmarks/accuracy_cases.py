@@ -59,7 +59,9 @@ disparity. Cases are split:
   (``results/periodic_outlines.md``), and at stop 54 (scene 2613, with
   fresh-t's 2211) to find the texture the estimator's coarse level loses
   (``results/lost_texture.md``). fresh-y (seeds 2700-2719) at the start of
-  stop 54, before any change (``results/accuracy_fresh_y.md``).
+  stop 54, before any change (``results/accuracy_fresh_y.md``). fresh-z (seeds
+  2800-2819) at the start of stop 55, before any change
+  (``results/accuracy_fresh_z.md``).
 
 Synthetic scenes (:func:`napari_lfalias.synthetic.layered_scene`) are
 rendered exactly; the reference integrates the continuous aperture
@@ -271,7 +273,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-r": range(2000, 2020), "fresh-s": range(2100, 2120), "fresh-t": range(2200, 2220),
                "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420),
                "fresh-w": range(2500, 2520), "fresh-x": range(2600, 2620),
-               "fresh-y": range(2700, 2720)}
+               "fresh-y": range(2700, 2720),
+               "fresh-z": range(2800, 2820)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -28,6 +28,10 @@ Run::
 
     .venv/bin/python benchmarks/bench_accuracy.py --out benchmarks/results/accuracy.md
 
+It takes about 1.5 hours on two cores. Each case is kept as it is judged
+(``accuracy.md.progress`` beside the report); a run stopped part way
+continues where it was with the same command and ``--resume``.
+
 A sweep of the focus over the real sub-grids (``accuracy_real_sweep.md``)::
 
     .venv/bin/python benchmarks/bench_accuracy.py --cases hci --slopes -3 -2.5 -2 -1.5 -1 -0.5 0 0.5 1 1.5 2 2.5 \
@@ -37,6 +41,7 @@ A sweep of the focus over the real sub-grids (``accuracy_real_sweep.md``)::
 from __future__ import annotations
 
 import argparse
+import pickle
 import time
 from pathlib import Path
 
@@ -173,6 +178,62 @@ def _strong_aliasing_table(strong, goal=3.0):
             "disparity counts as not reached by the rendering):\n\n" + table(head, body))
 
 
+def _judge_case(case, slopes, images_dir):
+    """Every method on ``case`` at ``slopes``: its report section, its summary items and its strong-aliasing
+    gains, as one record (what an interrupted run keeps; see ``--resume``)."""
+    lines = [f"### {case.name} ({case.split})", "", case.notes, ""]
+    summary = []  # ((split, method), item) per slope and method
+    strong = []  # (split, default's gain where aliased, the true-disparity rendering's) per slope with aliasing
+    for slope in slopes:
+        rows, share = evaluate(case, slope, images_dir)
+        header = ["method", "PSNR all", "PSNR aliased", "PSNR clean", "SSIM all", "SSIM aliased", "SSIM clean",
+                  "AUC", "F1", "s"]
+        body = [[r["method"]] + [f"{r[k]:.2f}" for k in ("psnr all", "psnr aliased", "psnr clean", "ssim all",
+                                                         "ssim aliased", "ssim clean", "auc", "f1", "seconds")]
+                for r in rows]
+        lines += [f"slope {slope:+.2f}: {share:.1%} aliased", "", table(header, body), ""]
+        naive = rows[0]
+        gains = {r["method"]: r["psnr aliased"] - naive["psnr aliased"] for r in rows[1:]}
+        if share > 0:
+            strong.append((case.split, gains["default"], gains.get("rendering, true disparity", float("nan"))))
+        for r in rows[1:]:
+            summary.append(((case.split, r["method"]),
+                            {k: r[k] - naive[k] for k in ("psnr all", "psnr aliased", "psnr clean")}
+                            | {"auc": r["auc"], "f1": r["f1"], "counts": r["counts"], "share": share}))
+        print(case.name, slope, " | ".join(f"{r['method']}: {r['psnr all'] - naive['psnr all']:+.2f} "
+                                            f"al {r['psnr aliased'] - naive['psnr aliased']:+.2f} "
+                                            f"cl {r['psnr clean'] - naive['psnr clean']:+.2f} "
+                                            f"auc {r['auc']:.2f} f1 {r['f1']:.2f}" for r in rows[1:]), flush=True)
+    if "estimate_s" in case.extra:
+        lines += [f"disparity estimated in {case.extra['estimate_s']:.2f} s", ""]
+    return {"case": case.name, "section": "\n".join(lines), "summary": summary, "strong": strong}
+
+
+def _progress_file(out):
+    """Where a run writing ``out`` keeps each judged case as it goes (removed when the run starts afresh)."""
+    return out.with_name(out.name + ".progress")
+
+
+def _resumed(out):
+    """The cases an interrupted run writing ``out`` had judged, by name (none if it kept no progress)."""
+    if out is None:
+        raise SystemExit("--resume needs --out: the progress is kept beside the report")
+    records = {}
+    path = _progress_file(out)
+    if path.exists():
+        with path.open("rb") as progress:
+            while True:
+                try:
+                    record = pickle.load(progress)
+                except EOFError:
+                    break
+                except pickle.UnpicklingError:  # the case being written when the run was stopped
+                    break
+                records[record["case"]] = record
+    print(f"resuming: {len(records)} cases already judged ({path})", flush=True)
+    return records
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
@@ -183,41 +244,32 @@ def main(argv=None):
     parser.add_argument("--slopes", type=float, nargs="+", default=None,
                         help="judge every case at these slopes instead of its own (a sweep of the focus; "
                              "no images are written)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the cases an interrupted run of the same code judged (kept beside --out) "
+                             "and judge only the rest")
     args = parser.parse_args(argv)
     images_dir = None if args.out is None or args.slopes else args.out.parent / "accuracy"
-    if images_dir is not None and not (args.split or args.cases):  # a random scene's images are kept only
-        for stale in images_dir.glob("fresh_*.png"):                 # while the default loses there
+    if images_dir is not None and not (args.split or args.cases or args.resume):  # a random scene's images are kept
+        for stale in images_dir.glob("fresh_*.png"):                                # only while the default loses there
             stale.unlink()
-    sections = []
-    summary = {}
-    strong = []  # (split, default's gain where aliased, the true-disparity rendering's) per slope with aliasing
+    done = _resumed(args.out) if args.resume else {}
+    if args.out is not None and not args.resume:
+        _progress_file(args.out).unlink(missing_ok=True)
+    records = []
     for case in all_cases(args.size, split=args.split):
         if args.split and case.split != args.split or args.cases and args.cases.lower() not in case.name.lower():
             continue
-        lines = [f"### {case.name} ({case.split})", "", case.notes, ""]
-        for slope in args.slopes or case.slopes:
-            rows, share = evaluate(case, slope, images_dir)
-            header = ["method", "PSNR all", "PSNR aliased", "PSNR clean", "SSIM all", "SSIM aliased", "SSIM clean",
-                      "AUC", "F1", "s"]
-            body = [[r["method"]] + [f"{r[k]:.2f}" for k in ("psnr all", "psnr aliased", "psnr clean", "ssim all",
-                                                             "ssim aliased", "ssim clean", "auc", "f1", "seconds")]
-                    for r in rows]
-            lines += [f"slope {slope:+.2f}: {share:.1%} aliased", "", table(header, body), ""]
-            naive = rows[0]
-            gains = {r["method"]: r["psnr aliased"] - naive["psnr aliased"] for r in rows[1:]}
-            if share > 0:
-                strong.append((case.split, gains["default"], gains.get("rendering, true disparity", float("nan"))))
-            for r in rows[1:]:
-                summary.setdefault((case.split, r["method"]), []).append(
-                    {k: r[k] - naive[k] for k in ("psnr all", "psnr aliased", "psnr clean")}
-                    | {"auc": r["auc"], "f1": r["f1"], "counts": r["counts"], "share": share})
-            print(case.name, slope, " | ".join(f"{r['method']}: {r['psnr all'] - naive['psnr all']:+.2f} "
-                                                f"al {r['psnr aliased'] - naive['psnr aliased']:+.2f} "
-                                                f"cl {r['psnr clean'] - naive['psnr clean']:+.2f} "
-                                                f"auc {r['auc']:.2f} f1 {r['f1']:.2f}" for r in rows[1:]), flush=True)
-        if "estimate_s" in case.extra:
-            lines += [f"disparity estimated in {case.extra['estimate_s']:.2f} s", ""]
-        sections.append("\n".join(lines))
+        record = done.get(case.name) or _judge_case(case, args.slopes or case.slopes, images_dir)
+        if case.name not in done and args.out is not None:
+            with _progress_file(args.out).open("ab") as progress:
+                pickle.dump(record, progress)
+        records.append(record)
+    sections = [r["section"] for r in records]
+    summary = {}
+    for record in records:
+        for key, item in record["summary"]:
+            summary.setdefault(key, []).append(item)
+    strong = [s for r in records for s in r["strong"]]
     head = ["split", "method", "cases", "min dPSNR all", "min dPSNR clean", "mean dPSNR aliased", "min dPSNR aliased",
             "mean AUC", "mean F1", "min F1", f"mean F1, >= {MANY_ALIASED:.0%} aliased", "pooled F1"]
     rows = []
@@ -236,6 +288,7 @@ def main(argv=None):
     if args.out is not None:
         notes = "## Notes (written by hand, kept when re-run)\n\n" + kept_notes(args.out)
         write_report(args.out, "Accuracy of aliasing detection and reduction", [summary_md, notes] + sections)
+        _progress_file(args.out).unlink(missing_ok=True)
 
 
 if __name__ == "__main__":

@@ -146,6 +146,30 @@ def test_a_case_seen_through_a_camera_keeps_the_reference_of_its_optics(three_la
     np.testing.assert_allclose(case.comb(0.0), lfa.refocus(clean, 0.0), rtol=0, atol=2e-6)
 
 
+class _Brighter:
+    """A synthetic scene with its radiance scaled by ``gain`` (what a brighter light would show)."""
+
+    def __init__(self, scene, gain):
+        self.scene, self.gain, self.disparity = scene, np.float32(gain), scene.disparity
+        self.lightfield = lfa.LightField(scene.lightfield.data * self.gain, scene.lightfield.positions)
+
+    def reference(self, *args, **kwargs):
+        return self.scene.reference(*args, **kwargs) * self.gain
+
+
+def test_a_camera_records_no_light_above_one_in_its_views_nor_in_their_reference():
+    """A random texture's tails rise above 1 in places: at exposure 1 too the sensor saturates there, every
+    view's samples and the sum of the aperture's rays (before stop 55 the reference kept them, up to 1.32 on
+    the fresh scenes, where no view could record them)."""
+    scene = _Brighter(layered_scene([(1.0, "noise", None)], n_views=3, size=64, seed=0), gain=2.0)
+    raw = scene.reference(0.5, interpolation="exact")
+    assert (raw > 1).mean() > 0.01  # the trap is real
+    case = accuracy_cases._synthetic("noise, bright", "tune", scene, [0.5], read_noise=0.004, seed=2)
+    assert case.lightfield.data.max() <= 1
+    np.testing.assert_array_equal(case.reference(0.5), np.clip(raw, 0, 1))
+    assert case.comb(0.5).max() <= 1
+
+
 def test_a_camera_records_no_light_below_zero_in_its_views_nor_in_their_reference():
     """The dark lines of a lines texture cross below 0 where they meet (a random texture's tails do too): the
     sensor clips every view's samples at 0, and the sum of the aperture's rays there as well; without a

@@ -334,28 +334,38 @@ def fresh_case(seed, split, size=256, covering_shift=0.0):
     draw = fresh_draw(seed)
     scene, layers = _covering_moved(draw.layers, covering_shift, n_views=draw.n_views, size=size, seed=seed,
                                     name=f"fresh {seed}")
-    name = f"fresh {seed}, {draw.n_views}x{draw.n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
+    name = _fresh_name(seed, draw.n_views, layers)
     camera = draw.camera
     notes = "camera: " + (", ".join(f"{k} {v:.3g}" if isinstance(v, float) else k for k, v in camera.items())
                           or "ideal")
     return _synthetic(name, split, scene, draw.slopes, notes, **camera, **({"seed": seed} if camera else {}))
 
 
-def fresh_cases(size=256, split=None):
+def _fresh_name(seed, n_views, layers):
+    return f"fresh {seed}, {n_views}x{n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
+
+
+def fresh_cases(size=256, split=None, named=None):
     """The random scenes of the fresh splits (:data:`FRESH_SEEDS`; ``split``: of that one only), made one at
-    a time as they are iterated (a few hundred light fields do not fit in memory together)."""
+    a time as they are iterated (a few hundred light fields do not fit in memory together); ``named``: only
+    those whose name it passes (the others are not made)."""
     for name, seeds in FRESH_SEEDS.items():
         if split is None or name == split:
-            yield from (fresh_case(seed, name, size) for seed in seeds)
+            for seed in seeds:
+                draw = fresh_draw(seed)  # cheap: the name is known before the scene is rendered
+                if named is None or named(_fresh_name(seed, draw.n_views, draw.layers)):
+                    yield fresh_case(seed, name, size)
 
 
-def all_cases(size=256, fresh=True, split=None):
+def all_cases(size=256, fresh=True, split=None, named=None):
     """Every case: synthetic, lenslet captures through the decoder (:mod:`lenslet_cases`), real, and
-    (with ``fresh``) the random scenes; ``split``: only that split's. Made as they are iterated."""
+    (with ``fresh``) the random scenes; ``split``: only that split's; ``named``: only those whose name it
+    passes (the random scenes it does not pass are not made). Made as they are iterated."""
     from lenslet_cases import lenslet_cases  # it imports Case from here
 
     if split is None or not split.startswith("fresh"):
         fixed = synthetic_cases(size) + lenslet_cases(size) + hci_cases()
-        yield from (case for case in fixed if split is None or case.split == split)
+        yield from (case for case in fixed
+                    if (split is None or case.split == split) and (named is None or named(case.name)))
     if fresh and (split is None or split.startswith("fresh")):
-        yield from fresh_cases(size, split)
+        yield from fresh_cases(size, split, named)

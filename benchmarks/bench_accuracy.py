@@ -256,9 +256,8 @@ def main(argv=None):
     if args.out is not None and not args.resume:
         _progress_file(args.out).unlink(missing_ok=True)
     records = []
-    for case in all_cases(args.size, split=args.split):
-        if args.split and case.split != args.split or args.cases and args.cases.lower() not in case.name.lower():
-            continue
+    named = (lambda name: args.cases.lower() in name.lower()) if args.cases else None
+    for case in all_cases(args.size, split=args.split, named=named):
         record = done.get(case.name) or _judge_case(case, args.slopes or case.slopes, images_dir)
         if case.name not in done and args.out is not None:
             with _progress_file(args.out).open("ab") as progress:

@@ -188,6 +188,16 @@ def test_a_camera_records_no_light_below_zero_in_its_views_nor_in_their_referenc
     np.testing.assert_array_equal(ideal.reference(0.5), raw)
 
 
+def test_a_name_filter_makes_only_the_random_scenes_it_passes(monkeypatch):
+    """``bench_accuracy.py --cases`` judges a few scenes: the others of the 600 are not rendered (some seconds
+    each), their names known from the draw."""
+    made = []
+    make = accuracy_cases.fresh_case
+    monkeypatch.setattr(accuracy_cases, "fresh_case", lambda seed, *args: (made.append(seed), make(seed, *args))[1])
+    cases = list(accuracy_cases.all_cases(48, split="fresh-z", named=lambda name: name.startswith("fresh 2808,")))
+    assert made == [2808] and [case.name for case in cases] == [make(2808, "fresh-z", 48).name]
+
+
 @pytest.mark.parametrize("seed", [300, 415, 500])
 def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physical(seed):
     """A random scene is the same whenever its seed is drawn (so a split means the same cases on any

@@ -331,7 +331,11 @@ def fresh_case(seed, split, size=256, covering_shift=0.0):
 
     ``covering_shift``: the last layer (the one covering the view) moved by that much disparity, the
     textures, camera and slopes those of the scene as drawn (``periodic_ambiguity.py``)."""
-    draw = fresh_draw(seed)
+    return fresh_case_of(fresh_draw(seed), seed, split, size, covering_shift)
+
+
+def fresh_case_of(draw, seed, split, size=256, covering_shift=0.0):
+    """:func:`fresh_case` of a :class:`FreshDraw` (``seed``'s, or one changed: another camera)."""
     scene, layers = _covering_moved(draw.layers, covering_shift, n_views=draw.n_views, size=size, seed=seed,
                                     name=f"fresh {seed}")
     name = _fresh_name(seed, draw.n_views, layers)

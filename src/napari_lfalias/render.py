@@ -84,6 +84,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _validate
+from ._matting import matted
 from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import LightField
@@ -489,6 +490,7 @@ class SlopeRenderer:
         disparity = np.ascontiguousarray(disparity, np.float64)
         confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
         confidence = np.ascontiguousarray(confidence, np.float32)
+        given = disparity
         disparity = _with_mixed_edges(disparity, slope, OCCLUSION_GAP_PX / spacing)
         n = self.positions.shape[0]
         # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
@@ -518,7 +520,8 @@ class SlopeRenderer:
         _disoccluded_in_focus(stack, bins, landed, warped[extra:-extra, extra:-extra], edges, centres, taps, order,
                               occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
-        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack,
+                      given)
 
     def composite(self, layers, *, within=None, elsewhere=None, trust=True):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
@@ -540,8 +543,9 @@ class SlopeRenderer:
         if trust:
             trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
         in_focus = sharp_at(layers.disparity, slope, spacing) & (share < 1e-3)
-        rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
-                              share.astype(np.float32), trusted if trust else None)
+        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing,
+                       layers.larger_first)
+        rendering = Rendering(image.astype(np.float32), share.astype(np.float32), trusted if trust else None)
         if windows is None or within is None:
             return rendering
         done = done[inner]
@@ -593,6 +597,8 @@ class Layers:
         The occlusion order the disparity was warped in.
     stack : ShiftedStack
         The views shifted for the slope, over the same grid as ``view_bins``.
+    given : ndarray (Y, X) float64
+        The disparity as given (its outlines not moved: where :mod:`._matting` looks for them).
     """
 
     disparity: np.ndarray
@@ -605,6 +611,7 @@ class Layers:
     has_fill: np.ndarray
     larger_first: bool
     stack: object
+    given: np.ndarray
 
     @property
     def reach(self):

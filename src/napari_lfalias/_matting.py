@@ -42,6 +42,11 @@ from scipy import ndimage
 
 #: How far (px) from a surface in focus its outline mixes into the background's pixels.
 BAND_PX = 6
+#: Least share of the samples' variance across the views that the background points explain (R^2): a wrong
+#: disparity leaves them unrelated.
+MIN_FIT = 0.8
+#: Least background share of an outline's mixed sample that stands in, its fit taken off, for the background.
+MIN_UNMIXED = 0.5
 #: Fewest views whose background point is found for a pixel to be matted.
 MIN_VIEWS = 3
 #: Least variance of the background points across the views (luminance-like, summed over the channels) for
@@ -50,41 +55,45 @@ MIN_SPREAD = 1e-5
 
 
 @njit(cache=True)
-def _clean_sample(values, weights, bins, clean, k, y, x, out):
-    """Whether the bilinear taps at grid ``(y, x)`` all show bin ``k`` clean with weight; if so the value
-    into ``out``."""
-    n_rows, n_cols = clean.shape
+def _clean_sample(values, weights, bins, mixed, share, offset, least, k, y, x, out):
+    """Whether the bilinear taps at grid ``(y, x)`` all show bin ``k`` (in the view's ``bins``, or as the
+    background of an outline's ``mixed`` pixel) with weight and a background ``share`` of at least ``least``;
+    if so the background's colour there (each tap less its ``offset``, over its share) into ``out``."""
+    n_rows, n_cols = share.shape
     y0, x0 = int(np.floor(y)), int(np.floor(x))
     if y0 < 0 or x0 < 0 or y0 + 1 >= n_rows or x0 + 1 >= n_cols:
         return False
     for yy in range(y0, y0 + 2):
         for xx in range(x0, x0 + 2):
-            if not (clean[yy, xx] and bins[yy, xx] == k and weights[yy, xx] > 0.0):
+            if not (share[yy, xx] >= least and (bins[yy, xx] == k or mixed[yy, xx] == k) and weights[yy, xx] > 0.0):
                 return False
     fy, fx = y - y0, x - x0
     for c in range(out.shape[0]):
-        out[c] = ((1.0 - fy) * ((1.0 - fx) * values[y0, x0, c] + fx * values[y0, x0 + 1, c])
-                  + fy * ((1.0 - fx) * values[y0 + 1, x0, c] + fx * values[y0 + 1, x0 + 1, c]))
+        out[c] = ((1.0 - fy) * ((1.0 - fx) * (values[y0, x0, c] - offset[y0, x0, c]) / share[y0, x0]
+                                + fx * (values[y0, x0 + 1, c] - offset[y0, x0 + 1, c]) / share[y0, x0 + 1])
+                  + fy * ((1.0 - fx) * (values[y0 + 1, x0, c] - offset[y0 + 1, x0, c]) / share[y0 + 1, x0]
+                          + fx * (values[y0 + 1, x0 + 1, c] - offset[y0 + 1, x0 + 1, c]) / share[y0 + 1, x0 + 1]))
     return True
 
 
 @njit(cache=True)
-def _background_point(values, weights, bins, clean, k, r, positions, order, qy, qx, y, x, out):
+def _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, order, qy, qx, y, x,
+                      out):
     """The background's point the ray from aperture position ``(qy, qx)`` through grid pixel ``(y, x)`` meets
-    (residual ``r``), from the first view of ``order`` that shows it clean; whether one does."""
+    (residual ``r``), from the first view of ``order`` that shows it (:func:`_clean_sample`); whether one does."""
     for j in order:  # view j shows at p + r (q_j - q) what the view at q shows at p
         sy = y + r * (positions[j, 0] - qy)
         sx = x + r * (positions[j, 1] - qx)
-        if _clean_sample(values[j], weights[j], bins[j], clean, k, sy, sx, out):
+        if _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, least, k, sy, sx, out):
             return True
     return False
 
 
 @njit(cache=True, parallel=True)
-def matte_band(values, weights, bins, clean, band_y, band_x, band_bin, band_r, positions, nearest, cell,
-               min_views, min_spread, out, done):
-    """Matte each band pixel (grid ``band_y``, ``band_x``; its background's bin and residual): ``out (P, C)``
-    the matted colour, ``done (P,)`` where one was made (module notes)."""
+def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin, band_r, positions, nearest, min_views,
+             min_spread, min_fit, out_offset, out_share, fitted):
+    """Each band pixel's samples regressed on the clean background points its views would show there
+    (module notes, 1 and 2): ``out_offset (P, C)`` (``a``), ``out_share (P,)`` (``b``), ``fitted (P,)``."""
     n = values.shape[0]
     n_ch = values.shape[3]
     for p in prange(band_y.shape[0]):
@@ -94,33 +103,56 @@ def matte_band(values, weights, bins, clean, band_y, band_x, band_bin, band_r, p
         w_sum = np.zeros(n_ch)
         sw = np.zeros(n_ch)
         ww = np.zeros(n_ch)
+        ss = np.zeros(n_ch)
         count = 0
+        fitted[p] = False
         for u in range(n):
             if not weights[u, y, x] > 0.0:
                 continue
-            if not _background_point(values, weights, bins, clean, k, r, positions, nearest[u],
+            if not _background_point(values, weights, bins, mixed, clean, zero, 1.0, k, r, positions, nearest[u],
                                      positions[u, 0], positions[u, 1], y, x, point):
                 continue
             count += 1
             for c in range(n_ch):
-                s = values[u, y, x, c]
-                s_sum[c] += s
+                sample = values[u, y, x, c]
+                s_sum[c] += sample
                 w_sum[c] += point[c]
-                sw[c] += s * point[c]
+                sw[c] += sample * point[c]
                 ww[c] += point[c] * point[c]
-        done[p] = False
+                ss[c] += sample * sample
         if count < min_views:
             continue
         covariance = 0.0
         variance = 0.0
+        recorded = 0.0
         for c in range(n_ch):
             covariance += sw[c] / count - s_sum[c] * w_sum[c] / (count * count)
             variance += ww[c] / count - w_sum[c] * w_sum[c] / (count * count)
-        if variance < min_spread:
+            recorded += ss[c] / count - s_sum[c] * s_sum[c] / (count * count)
+        if variance < min_spread or recorded <= 0.0 or covariance * covariance < min_fit * variance * recorded:
             continue
-        share = min(max(covariance / variance, 0.0), 1.0)
-        # the box over the view's cell, as the renderer's: whole-pixel taps in the view's own grid and end taps
-        # of weight f, each point taken clean from the view nearest that shows it
+        b = min(max(covariance / variance, 0.0), 1.0)
+        for c in range(n_ch):
+            out_offset[p, c] = s_sum[c] / count - b * w_sum[c] / count
+        out_share[p] = b
+        fitted[p] = True
+
+
+@njit(cache=True, parallel=True)
+def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x, band_bin, band_r, positions, nearest,
+             cell, band_offset, band_share, fitted, out, done):
+    """Each fitted band pixel's colour in the dense aperture, ``a + b box`` (module notes, 3): ``out (P, C)``,
+    ``done (P,)``. The box is the renderer's (whole-pixel taps of each view's own samples, end taps of weight
+    ``f``); a tap whose sample does not show the background whole is taken from the view nearest that does,
+    an outline's mixed sample with its own fit taken off (``share`` at least ``least``)."""
+    n = values.shape[0]
+    n_ch = values.shape[3]
+    for p in prange(band_y.shape[0]):
+        done[p] = False
+        if not fitted[p]:
+            continue
+        y, x, k, r = band_y[p], band_x[p], band_bin[p], band_r[p]
+        point = np.empty(n_ch)
         width = abs(r) * cell
         n_taps = int((width - 1.0) // 2.0) if width >= 1.0 else 0
         f = (width - (2 * n_taps + 1)) / 2.0 if width >= 1.0 else 0.0
@@ -128,8 +160,6 @@ def matte_band(values, weights, bins, clean, band_y, band_x, band_bin, band_r, p
         found = 0.0
         total = 0.0
         for u in range(n):
-            base_y = r * positions[u, 0]
-            base_x = r * positions[u, 1]
             for ty in range(-n_taps - 1, n_taps + 2):
                 wy = f if (ty == -n_taps - 1 or ty == n_taps + 1) else 1.0
                 if wy <= 0.0:
@@ -140,15 +170,15 @@ def matte_band(values, weights, bins, clean, band_y, band_x, band_bin, band_r, p
                         continue
                     total += wy * wx
                     # the tap at p + t of view u's own samples stands for the view at q_u - t / r
-                    if _background_point(values, weights, bins, clean, k, r, positions, nearest[u],
+                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, nearest[u],
                                          positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x, point):
                         found += wy * wx
                         for c in range(n_ch):
                             box[c] += wy * wx * point[c]
-        if 2 * found < total:
+        if 2.0 * found < total:
             continue
         for c in range(n_ch):
-            out[p, c] = s_sum[c] / count - share * w_sum[c] / count + share * box[c] / found
+            out[p, c] = band_offset[p, c] + band_share[p] * box[c] / found
         done[p] = True
 
 
@@ -171,19 +201,34 @@ def matted(image, layers, slope, spacing, larger_first, where=None):
         band &= where
     if not band.any():
         return image
-    clean = np.pad(distance > BAND_PX, pad, constant_values=False)
+    clean = np.pad((distance > BAND_PX).astype(np.float64), pad)
     ys, xs = np.nonzero(band)
-    edges = layers.bins[0]
     stack = layers.stack
     positions = np.ascontiguousarray(stack.positions, np.float64)
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
     nearest = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable"))  # each view first, then the nearest
-    out = np.empty((len(ys), image.shape[-1]), np.float64)
-    done = np.empty(len(ys), bool)
-    matte_band(stack.values, stack.weights, layers.view_bins, clean, (ys + pad).astype(np.int64),
-               (xs + pad).astype(np.int64), _bin_index(edges, disparity[ys, xs]).astype(np.int64),
-               residual[ys, xs].astype(np.float64), positions, nearest, float(spacing), MIN_VIEWS,
-               MIN_SPREAD, out, done)
+    n_ch = image.shape[-1]
+    zero = np.zeros(clean.shape + (n_ch,))
+    grid_y, grid_x = (ys + pad).astype(np.int64), (xs + pad).astype(np.int64)
+    bins = _bin_index(layers.bins[0], disparity[ys, xs]).astype(np.int64)
+    residual = residual[ys, xs].astype(np.float64)
+    offset = np.zeros((len(ys), n_ch))
+    share = np.zeros(len(ys))
+    fitted = np.zeros(len(ys), bool)
+    mixed = np.full(clean.shape, -1, np.int64)  # none yet: the first pass takes clean samples only
+    fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual, positions,
+             nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, offset, share, fitted)
+    if not fitted.any():
+        return image
+    # the outline's samples, their fits taken off, stand in for the background they mix
+    shares, offsets = clean.copy(), zero
+    shares[grid_y[fitted], grid_x[fitted]] = share[fitted]
+    offsets[grid_y[fitted], grid_x[fitted]] = offset[fitted]
+    mixed[grid_y[fitted], grid_x[fitted]] = bins[fitted]  # in focus, their mix is the same in every view
+    out = np.empty((len(ys), n_ch))
+    done = np.zeros(len(ys), bool)
+    box_band(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, grid_y, grid_x, bins,
+             residual, positions, nearest, float(spacing), offset, share, fitted, out, done)
     if not done.any():
         return image
     image = image.copy()

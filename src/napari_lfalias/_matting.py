@@ -170,8 +170,9 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
                         continue
                     total += wy * wx
                     # the tap at p + t of view u's own samples stands for the view at q_u - t / r
-                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, nearest[u],
-                                         positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x, point):
+                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
+                                         nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x,
+                                         point):
                         found += wy * wx
                         for c in range(n_ch):
                             box[c] += wy * wx * point[c]
@@ -182,10 +183,9 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
         done[p] = True
 
 
-def matted(image, layers, slope, spacing, larger_first, where=None):
+def matted(image, layers, slope, spacing):
     """``image`` (the composite of ``layers``, ``(Y, X, C)``) with the soft outlines of in-focus occluders
-    matted (module notes); ``where``: only these pixels (``None``: all). A new array, or ``image`` itself
-    where there is nothing to matte."""
+    matted (module notes): a new array, or ``image`` itself where there is nothing to matte."""
     from .render import _bin_index, sharp_at
 
     disparity = layers.given  # the outlines where they are, not given to the sharper side
@@ -195,10 +195,8 @@ def matted(image, layers, slope, spacing, larger_first, where=None):
     pad = (layers.view_bins.shape[1] - disparity.shape[0]) // 2
     distance = ndimage.distance_transform_edt(~sharp)
     residual = disparity - slope
-    behind = (residual < 0) if larger_first else (residual > 0)  # the sharp surface (at the slope) is nearer
+    behind = (residual < 0) if layers.larger_first else (residual > 0)  # the sharp surface (at the slope) is nearer
     band = (distance <= BAND_PX) & ~sharp & behind & (np.abs(residual) * spacing >= 1.0)
-    if where is not None:
-        band &= where
     if not band.any():
         return image
     clean = np.pad((distance > BAND_PX).astype(np.float64), pad)
@@ -216,8 +214,8 @@ def matted(image, layers, slope, spacing, larger_first, where=None):
     share = np.zeros(len(ys))
     fitted = np.zeros(len(ys), bool)
     mixed = np.full(clean.shape, -1, np.int64)  # none yet: the first pass takes clean samples only
-    fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual, positions,
-             nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, offset, share, fitted)
+    fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual,
+             positions, nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, offset, share, fitted)
     if not fitted.any():
         return image
     # the outline's samples, their fits taken off, stand in for the background they mix

@@ -38,6 +38,10 @@ when not given):
    A blurred surface goes on behind what hides it, with the colour of what
    is seen of it nearby, so its blur reaches under an occluder's outline.
 4. The views' composites are summed and normalised by their coverage.
+5. The soft outline of an in-focus occluder over a defocused background,
+   where every view records a mix of the two, is matted from the views
+   (:mod:`._matting`): the occluder's share stays sharp, the background's
+   takes its blur.
 
 Where the light field has sample weights of its own (a calibrated
 vignette), a view's cell is not one weight: a blurred surface's box
@@ -543,8 +547,7 @@ class SlopeRenderer:
         if trust:
             trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
         in_focus = sharp_at(layers.disparity, slope, spacing) & (share < 1e-3)
-        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing,
-                       layers.larger_first)
+        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing)
         rendering = Rendering(image.astype(np.float32), share.astype(np.float32), trusted if trust else None)
         if windows is None or within is None:
             return rendering

@@ -56,37 +56,42 @@ MIN_SPREAD = 1e-5
 
 @njit(cache=True)
 def _clean_sample(values, weights, bins, mixed, share, offset, least, k, y, x, out):
-    """Whether the bilinear taps at grid ``(y, x)`` all show bin ``k`` (in the view's ``bins``, or as the
-    background of an outline's ``mixed`` pixel) with weight and a background ``share`` of at least ``least``;
-    if so the background's colour there (each tap less its ``offset``, over its share) into ``out``."""
+    """The least weight of the bilinear taps at grid ``(y, x)`` where they all show bin ``k`` (in the view's
+    ``bins``, or as the background of an outline's ``mixed`` pixel) with weight and a background ``share`` of at
+    least ``least``, and the background's colour there (each tap less its ``offset``, over its share) into
+    ``out``; -1 where they do not."""
     n_rows, n_cols = share.shape
     y0, x0 = int(np.floor(y)), int(np.floor(x))
     if y0 < 0 or x0 < 0 or y0 + 1 >= n_rows or x0 + 1 >= n_cols:
-        return False
+        return -1.0
+    weight = np.inf
     for yy in range(y0, y0 + 2):
         for xx in range(x0, x0 + 2):
             if not (share[yy, xx] >= least and (bins[yy, xx] == k or mixed[yy, xx] == k) and weights[yy, xx] > 0.0):
-                return False
+                return -1.0
+            weight = min(weight, weights[yy, xx])
     fy, fx = y - y0, x - x0
     for c in range(out.shape[0]):
         out[c] = ((1.0 - fy) * ((1.0 - fx) * (values[y0, x0, c] - offset[y0, x0, c]) / share[y0, x0]
                                 + fx * (values[y0, x0 + 1, c] - offset[y0, x0 + 1, c]) / share[y0, x0 + 1])
                   + fy * ((1.0 - fx) * (values[y0 + 1, x0, c] - offset[y0 + 1, x0, c]) / share[y0 + 1, x0]
                           + fx * (values[y0 + 1, x0 + 1, c] - offset[y0 + 1, x0 + 1, c]) / share[y0 + 1, x0 + 1]))
-    return True
+    return weight
 
 
 @njit(cache=True)
 def _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, order, qy, qx, y, x,
                       out):
     """The background's point the ray from aperture position ``(qy, qx)`` through grid pixel ``(y, x)`` meets
-    (residual ``r``), from the first view of ``order`` that shows it (:func:`_clean_sample`); whether one does."""
+    (residual ``r``), from the first view of ``order`` that shows it (:func:`_clean_sample`): its weight there,
+    -1 where none does."""
     for j in order:  # view j shows at p + r (q_j - q) what the view at q shows at p
         sy = y + r * (positions[j, 0] - qy)
         sx = x + r * (positions[j, 1] - qx)
-        if _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, least, k, sy, sx, out):
-            return True
-    return False
+        weight = _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, least, k, sy, sx, out)
+        if weight > 0.0:
+            return weight
+    return -1.0
 
 
 @njit(cache=True, parallel=True)
@@ -105,35 +110,39 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
         ww = np.zeros(n_ch)
         ss = np.zeros(n_ch)
         count = 0
+        total = 0.0
         fitted[p] = False
         for u in range(n):
             if not weights[u, y, x] > 0.0:
                 continue
-            if not _background_point(values, weights, bins, mixed, clean, zero, 1.0, k, r, positions, nearest[u],
-                                     positions[u, 0], positions[u, 1], y, x, point):
+            found = _background_point(values, weights, bins, mixed, clean, zero, 1.0, k, r, positions, nearest[u],
+                                      positions[u, 0], positions[u, 1], y, x, point)
+            if found <= 0.0:
                 continue
+            weight = min(weights[u, y, x], found)  # the noisier of the two samples (a vignette's corners)
             count += 1
+            total += weight
             for c in range(n_ch):
                 sample = values[u, y, x, c]
-                s_sum[c] += sample
-                w_sum[c] += point[c]
-                sw[c] += sample * point[c]
-                ww[c] += point[c] * point[c]
-                ss[c] += sample * sample
+                s_sum[c] += weight * sample
+                w_sum[c] += weight * point[c]
+                sw[c] += weight * sample * point[c]
+                ww[c] += weight * point[c] * point[c]
+                ss[c] += weight * sample * sample
         if count < min_views:
             continue
         covariance = 0.0
         variance = 0.0
         recorded = 0.0
         for c in range(n_ch):
-            covariance += sw[c] / count - s_sum[c] * w_sum[c] / (count * count)
-            variance += ww[c] / count - w_sum[c] * w_sum[c] / (count * count)
-            recorded += ss[c] / count - s_sum[c] * s_sum[c] / (count * count)
+            covariance += sw[c] / total - s_sum[c] * w_sum[c] / (total * total)
+            variance += ww[c] / total - w_sum[c] * w_sum[c] / (total * total)
+            recorded += ss[c] / total - s_sum[c] * s_sum[c] / (total * total)
         if variance < min_spread or recorded <= 0.0 or covariance * covariance < min_fit * variance * recorded:
             continue
         b = min(max(covariance / variance, 0.0), 1.0)
         for c in range(n_ch):
-            out_offset[p, c] = s_sum[c] / count - b * w_sum[c] / count
+            out_offset[p, c] = s_sum[c] / total - b * w_sum[c] / total
         out_share[p] = b
         fitted[p] = True
 
@@ -159,6 +168,7 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
         box = np.zeros(n_ch)
         found = 0.0
         total = 0.0
+        weighed = 0.0
         for u in range(n):
             for ty in range(-n_taps - 1, n_taps + 2):
                 wy = f if (ty == -n_taps - 1 or ty == n_taps + 1) else 1.0
@@ -170,16 +180,18 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
                         continue
                     total += wy * wx
                     # the tap at p + t of view u's own samples stands for the view at q_u - t / r
-                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
-                                         nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x,
-                                         point):
+                    weight = _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
+                                               nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y,
+                                               x, point)
+                    if weight > 0.0:
                         found += wy * wx
+                        weighed += wy * wx * weight
                         for c in range(n_ch):
-                            box[c] += wy * wx * point[c]
+                            box[c] += wy * wx * weight * point[c]
         if 2.0 * found < total:
             continue
         for c in range(n_ch):
-            out[p, c] = band_offset[p, c] + band_share[p] * box[c] / found
+            out[p, c] = band_offset[p, c] + band_share[p] * box[c] / weighed
         done[p] = True
 
 

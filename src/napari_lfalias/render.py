@@ -88,7 +88,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _validate
-from ._matting import matted
+from ._matting import BAND_PX, matted
 from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import LightField
@@ -649,7 +649,11 @@ class Layers:
         inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
         reach = self.reach
         grown = ndimage.maximum_filter(inputs, size=2 * reach + 1) if reach else inputs
-        return grown[self.inner] | (self.disparity != other.disparity)
+        differs = grown[self.inner] | (self.disparity != other.disparity)
+        outlines = self.given != other.given  # an outline matted elsewhere, and the samples its fit takes
+        if outlines.any():
+            differs |= ndimage.maximum_filter(outlines, size=2 * (reach + BAND_PX) + 1)
+        return differs
 
 
 def _beyond(image, pad, extra):

@@ -28,8 +28,9 @@ surface in focus, with the background's residual disparity ``r``:
    each point taken clean as in 1.
 
 Where fewer than :data:`MIN_VIEWS` views find their point, the points vary
-too little to tell the shares apart (:data:`MIN_SPREAD`), or under half of
-the box's points are found, the rendering stays as it was. A wrong
+too little to tell the shares apart (:data:`MIN_SPREAD`), or explain too
+little of the samples (:data:`MIN_FIT`), or too few of the box's points are
+found (:data:`MIN_BOX`), the rendering stays as it was. A wrong
 disparity leaves the points unrelated to the samples: ``b`` goes to 0 and
 the pixel to the mean of its samples, the naive refocus.
 """
@@ -47,6 +48,11 @@ BAND_PX = 6
 MIN_FIT = 0.8
 #: Least background share of an outline's mixed sample that stands in, its fit taken off, for the background.
 MIN_UNMIXED = 0.5
+#: Least share of the box's points found for a pixel to be matted (the others are hidden from every view, or
+#: beyond the image's edge: the mean of those found would be another box's).
+MIN_BOX = 0.5
+#: An occluder in focus is at least this many px wide (narrower in-focus specks have no outline to matte).
+SURFACE_PX = 5
 #: Fewest views whose background point is found for a pixel to be matted.
 MIN_VIEWS = 3
 #: Least variance of the background points across the views (luminance-like, summed over the channels) for
@@ -149,12 +155,13 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
 
 @njit(cache=True, parallel=True)
 def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x, band_bin, band_r, positions, nearest,
-             cell, band_offset, band_share, fitted, out, done):
+             cell, min_box, band_offset, band_share, fitted, out, done):
     """Each fitted band pixel's colour in the dense aperture, ``a + b box`` (module notes, 3): ``out (P, C)``,
     ``done (P,)``. The box is the renderer's (whole-pixel taps of each view's own samples, end taps of weight
     ``f``); a tap whose sample does not show the background whole is taken from the view nearest that does,
     an outline's mixed sample with its own fit taken off (``share`` at least ``least``)."""
     n = values.shape[0]
+    n_rows, n_cols = values.shape[1], values.shape[2]
     n_ch = values.shape[3]
     for p in prange(band_y.shape[0]):
         done[p] = False
@@ -168,7 +175,6 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
         box = np.zeros(n_ch)
         found = 0.0
         total = 0.0
-        weighed = 0.0
         for u in range(n):
             for ty in range(-n_taps - 1, n_taps + 2):
                 wy = f if (ty == -n_taps - 1 or ty == n_taps + 1) else 1.0
@@ -178,20 +184,23 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
                     wx = f if (tx == -n_taps - 1 or tx == n_taps + 1) else 1.0
                     if wx <= 0.0:
                         continue
-                    total += wy * wx
-                    # the tap at p + t of view u's own samples stands for the view at q_u - t / r
-                    weight = _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
-                                               nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y,
-                                               x, point)
-                    if weight > 0.0:
-                        found += wy * wx
-                        weighed += wy * wx * weight
+                    # the tap at p + t of view u's own samples stands for the view at q_u - t / r; it counts by
+                    # that sample's validity (beyond the view's image, not at all), as in the dense aperture
+                    gy, gx = y + ty, x + tx
+                    if gy < 0 or gx < 0 or gy >= n_rows or gx >= n_cols or not weights[u, gy, gx] > 0.0:
+                        continue
+                    tap = wy * wx * weights[u, gy, gx]
+                    total += tap
+                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
+                                         nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x,
+                                         point) > 0.0:
+                        found += tap
                         for c in range(n_ch):
-                            box[c] += wy * wx * weight * point[c]
-        if 2.0 * found < total:
+                            box[c] += tap * point[c]
+        if found < min_box * total:
             continue
         for c in range(n_ch):
-            out[p, c] = band_offset[p, c] + band_share[p] * box[c] / weighed
+            out[p, c] = band_offset[p, c] + band_share[p] * box[c] / found
         done[p] = True
 
 
@@ -201,7 +210,8 @@ def matted(image, layers, slope, spacing):
     from .render import _bin_index, sharp_at
 
     disparity = layers.given  # the outlines where they are, not given to the sharper side
-    sharp = sharp_at(disparity, slope, spacing)
+    # surfaces in focus, not the specks the views' focus test puts in focus where they happen to agree
+    sharp = ndimage.binary_opening(sharp_at(disparity, slope, spacing), np.ones((SURFACE_PX, SURFACE_PX), bool))
     if not sharp.any() or sharp.all():
         return image
     pad = (layers.view_bins.shape[1] - disparity.shape[0]) // 2
@@ -238,7 +248,7 @@ def matted(image, layers, slope, spacing):
     out = np.empty((len(ys), n_ch))
     done = np.zeros(len(ys), bool)
     box_band(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, grid_y, grid_x, bins,
-             residual, positions, nearest, float(spacing), offset, share, fitted, out, done)
+             residual, positions, nearest, float(spacing), MIN_BOX, offset, share, fitted, out, done)
     if not done.any():
         return image
     image = image.copy()

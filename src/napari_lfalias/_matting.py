@@ -204,9 +204,10 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
         done[p] = True
 
 
-def matted(image, layers, slope, spacing):
+def matted(image, layers, slope, spacing, where=None):
     """``image`` (the composite of ``layers``, ``(Y, X, C)``) with the soft outlines of in-focus occluders
-    matted (module notes): a new array, or ``image`` itself where there is nothing to matte."""
+    matted (module notes), ``where`` (``(Y, X)`` bool; ``None``: everywhere): a new array, or ``image`` itself
+    where there is nothing to matte."""
     from .render import _bin_index, sharp_at
 
     disparity = layers.given  # the outlines where they are, not given to the sharper side
@@ -219,6 +220,8 @@ def matted(image, layers, slope, spacing):
     residual = disparity - slope
     behind = (residual < 0) if layers.larger_first else (residual > 0)  # the sharp surface (at the slope) is nearer
     band = (distance <= BAND_PX) & ~sharp & behind & (np.abs(residual) * spacing >= 1.0)
+    if where is not None:
+        band &= where
     if not band.any():
         return image
     clean = np.pad((distance > BAND_PX).astype(np.float64), pad)

@@ -547,9 +547,11 @@ class SlopeRenderer:
         if trust:
             trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
         in_focus = sharp_at(layers.disparity, slope, spacing) & (share < 1e-3)
-        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing)
+        partial = windows is not None and within is not None
+        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing,
+                       done[inner] if partial else None)
         rendering = Rendering(image.astype(np.float32), share.astype(np.float32), trusted if trust else None)
-        if windows is None or within is None:
+        if not partial:
             return rendering
         done = done[inner]
         return Rendering(*(None if part is None or other is None else

@@ -37,6 +37,8 @@ the pixel to the mean of its samples, the naive refocus.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 from scipy import ndimage
@@ -154,22 +156,39 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
 
 
 @njit(cache=True, parallel=True)
-def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x, band_bin, band_r, positions, nearest,
-             cell, min_box, band_offset, band_share, fitted, out, done):
-    """Each fitted band pixel's colour in the dense aperture, ``a + b box`` (module notes, 3): ``out (P, C)``,
-    ``done (P,)``. The box is the renderer's (whole-pixel taps of each view's own samples, end taps of weight
-    ``f``); a tap whose sample does not show the background whole is taken from the view nearest that does,
-    an outline's mixed sample with its own fit taken off (``share`` at least ``least``)."""
+def fill_zone(values, weights, bins, mixed, share, offset, least, k, r, zone_y, zone_x, positions, nearest, out, ok):
+    """For every view ``u`` and zone pixel (grid ``zone_y``, ``zone_x``): the background (bin ``k``, residual
+    ``r``) that the view's sample there stands for in a box, ``out (n, Z, C)``: its own where it shows it
+    (:func:`_clean_sample`), else the nearest view's that does; ``ok (n, Z)`` where one does. Made once for
+    every outline pixel whose box reads it."""
     n = values.shape[0]
-    n_rows, n_cols = values.shape[1], values.shape[2]
     n_ch = values.shape[3]
+    for z in prange(zone_y.shape[0]):
+        point = np.empty(n_ch)
+        for u in range(n):
+            ok[u, z] = _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
+                                         nearest[u], positions[u, 0], positions[u, 1], zone_y[z], zone_x[z],
+                                         point) > 0.0
+            if ok[u, z]:
+                for c in range(n_ch):
+                    out[u, z, c] = point[c]
+
+
+@njit(cache=True, parallel=True)
+def box_band(weights, zone_index, filled, ok, band_y, band_x, band_r, cell, min_box, band_offset, band_share, fitted,
+             out, done):
+    """Each fitted outline pixel's colour in the dense aperture, ``a + b box`` (module notes, 3): ``out (P, C)``,
+    ``done (P,)``. The box is the renderer's (whole-pixel taps of each view's own samples, end taps of weight
+    ``f``), each tap counting by its own sample's validity (beyond the view's image, not at all, as in the
+    dense aperture) and taking the background :func:`fill_zone` found for it."""
+    n = weights.shape[0]
+    n_ch = filled.shape[2]
     for p in prange(band_y.shape[0]):
         done[p] = False
         if not fitted[p]:
             continue
-        y, x, k, r = band_y[p], band_x[p], band_bin[p], band_r[p]
-        point = np.empty(n_ch)
-        width = abs(r) * cell
+        y, x = band_y[p], band_x[p]
+        width = abs(band_r[p]) * cell
         n_taps = int((width - 1.0) // 2.0) if width >= 1.0 else 0
         f = (width - (2 * n_taps + 1)) / 2.0 if width >= 1.0 else 0.0
         box = np.zeros(n_ch)
@@ -184,19 +203,16 @@ def box_band(values, weights, bins, mixed, share, offset, least, band_y, band_x,
                     wx = f if (tx == -n_taps - 1 or tx == n_taps + 1) else 1.0
                     if wx <= 0.0:
                         continue
-                    # the tap at p + t of view u's own samples stands for the view at q_u - t / r; it counts by
-                    # that sample's validity (beyond the view's image, not at all), as in the dense aperture
                     gy, gx = y + ty, x + tx
-                    if gy < 0 or gx < 0 or gy >= n_rows or gx >= n_cols or not weights[u, gy, gx] > 0.0:
+                    z = zone_index[gy, gx]
+                    if z < 0 or not weights[u, gy, gx] > 0.0:
                         continue
                     tap = wy * wx * weights[u, gy, gx]
                     total += tap
-                    if _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
-                                         nearest[u], positions[u, 0] - ty / r, positions[u, 1] - tx / r, y, x,
-                                         point) > 0.0:
+                    if ok[u, z]:
                         found += tap
                         for c in range(n_ch):
-                            box[c] += tap * point[c]
+                            box[c] += tap * filled[u, z, c]
         if found < min_box * total:
             continue
         for c in range(n_ch):
@@ -250,8 +266,25 @@ def matted(image, layers, slope, spacing, where=None):
     mixed[grid_y[fitted], grid_x[fitted]] = bins[fitted]  # in focus, their mix is the same in every view
     out = np.empty((len(ys), n_ch))
     done = np.zeros(len(ys), bool)
-    box_band(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, grid_y, grid_x, bins,
-             residual, positions, nearest, float(spacing), MIN_BOX, offset, share, fitted, out, done)
+    centres, taps = layers.bins[1], layers.bins[2]
+    for k in np.unique(bins[fitted]):  # each background bin's zone: its outline pixels' boxes
+        mine = fitted & (bins == k)
+        reach = int(math.ceil(np.abs(residual[mine]).max() * spacing / 2.0)) + 1  # the widest box's
+        zone = np.zeros(clean.shape, bool)
+        zone[grid_y[mine], grid_x[mine]] = True
+        zone = ndimage.binary_dilation(zone, np.ones((2 * reach + 1,) * 2, bool))
+        zone_y, zone_x = np.nonzero(zone)
+        zone_index = np.full(zone.shape, -1, np.int64)
+        zone_index[zone_y, zone_x] = np.arange(len(zone_y))
+        filled = np.empty((len(positions), len(zone_y), n_ch))
+        ok = np.empty((len(positions), len(zone_y)), bool)
+        fill_zone(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, int(k),
+                  float(centres[k] - slope), zone_y.astype(np.int64), zone_x.astype(np.int64), positions, nearest,
+                  filled, ok)
+        made = np.zeros(len(ys), bool)
+        box_band(stack.weights, zone_index, filled, ok, grid_y, grid_x, residual, float(spacing), MIN_BOX, offset,
+                 share, mine, out, made)
+        done |= made
     if not done.any():
         return image
     image = image.copy()

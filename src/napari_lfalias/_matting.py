@@ -89,11 +89,20 @@ def _clean_sample(values, weights, bins, mixed, share, offset, least, k, y, x, o
 
 @njit(cache=True)
 def _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, order, qy, qx, y, x,
-                      out):
+                      out, to_usable):
     """The background's point the ray from aperture position ``(qy, qx)`` through grid pixel ``(y, x)`` meets
     (residual ``r``), from the first view of ``order`` that shows it (:func:`_clean_sample`): its weight there,
-    -1 where none does."""
+    -1 where none does. ``to_usable``: each grid pixel's distance (px) to the nearest whose share is at least
+    ``least``; a view whose offset moves the point less than that cannot show it, nor can any of ``order``
+    where the farthest does not (``order``: nearest ``(qy, qx)`` first)."""
+    need = to_usable[int(y), int(x)] - 2.0
+    if need > 0.0:
+        last = order[order.shape[0] - 1]
+        if abs(r) * math.hypot(positions[last, 0] - qy, positions[last, 1] - qx) < need:
+            return -1.0
     for j in order:  # view j shows at p + r (q_j - q) what the view at q shows at p
+        if need > 0.0 and abs(r) * math.hypot(positions[j, 0] - qy, positions[j, 1] - qx) < need:
+            continue
         sy = y + r * (positions[j, 0] - qy)
         sx = x + r * (positions[j, 1] - qx)
         weight = _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, least, k, sy, sx, out)
@@ -104,7 +113,7 @@ def _background_point(values, weights, bins, mixed, share, offset, least, k, r, 
 
 @njit(cache=True, parallel=True)
 def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin, band_r, positions, nearest, min_views,
-             min_spread, min_fit, out_offset, out_share, fitted):
+             min_spread, min_fit, to_clean, out_offset, out_share, fitted):
     """Each band pixel's samples regressed on the clean background points its views would show there
     (module notes, 1 and 2): ``out_offset (P, C)`` (``a``), ``out_share (P,)`` (``b``), ``fitted (P,)``."""
     n = values.shape[0]
@@ -124,7 +133,7 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
             if not weights[u, y, x] > 0.0:
                 continue
             found = _background_point(values, weights, bins, mixed, clean, zero, 1.0, k, r, positions, nearest[u],
-                                      positions[u, 0], positions[u, 1], y, x, point)
+                                      positions[u, 0], positions[u, 1], y, x, point, to_clean)
             if found <= 0.0:
                 continue
             weight = min(weights[u, y, x], found)  # the noisier of the two samples (a vignette's corners)
@@ -156,7 +165,8 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
 
 
 @njit(cache=True, parallel=True)
-def fill_zone(values, weights, bins, mixed, share, offset, least, k, r, zone_y, zone_x, positions, nearest, out, ok):
+def fill_zone(values, weights, bins, mixed, share, offset, least, k, r, zone_y, zone_x, positions, nearest, to_usable,
+              out, ok):
     """For every view ``u`` and zone pixel (grid ``zone_y``, ``zone_x``): the background (bin ``k``, residual
     ``r``) that the view's sample there stands for in a box, ``out (n, Z, C)``: its own where it shows it
     (:func:`_clean_sample`), else the nearest view's that does; ``ok (n, Z)`` where one does. Made once for
@@ -168,7 +178,7 @@ def fill_zone(values, weights, bins, mixed, share, offset, least, k, r, zone_y, 
         for u in range(n):
             ok[u, z] = _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
                                          nearest[u], positions[u, 0], positions[u, 1], zone_y[z], zone_x[z],
-                                         point) > 0.0
+                                         point, to_usable) > 0.0
             if ok[u, z]:
                 for c in range(n_ch):
                     out[u, z, c] = point[c]
@@ -256,7 +266,8 @@ def matted(image, layers, slope, spacing, where=None):
     fitted = np.zeros(len(ys), bool)
     mixed = np.full(clean.shape, -1, np.int64)  # none yet: the first pass takes clean samples only
     fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual,
-             positions, nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, offset, share, fitted)
+             positions, nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, ndimage.distance_transform_edt(clean < 1.0), offset,
+             share, fitted)
     if not fitted.any():
         return image
     # the outline's samples, their fits taken off, stand in for the background they mix
@@ -266,7 +277,8 @@ def matted(image, layers, slope, spacing, where=None):
     mixed[grid_y[fitted], grid_x[fitted]] = bins[fitted]  # in focus, their mix is the same in every view
     out = np.empty((len(ys), n_ch))
     done = np.zeros(len(ys), bool)
-    centres, taps = layers.bins[1], layers.bins[2]
+    centres = layers.bins[1]
+    to_usable = ndimage.distance_transform_edt(shares < MIN_UNMIXED)
     for k in np.unique(bins[fitted]):  # each background bin's zone: its outline pixels' boxes
         mine = fitted & (bins == k)
         reach = int(math.ceil(np.abs(residual[mine]).max() * spacing / 2.0)) + 1  # the widest box's
@@ -280,7 +292,7 @@ def matted(image, layers, slope, spacing, where=None):
         ok = np.empty((len(positions), len(zone_y)), bool)
         fill_zone(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, int(k),
                   float(centres[k] - slope), zone_y.astype(np.int64), zone_x.astype(np.int64), positions, nearest,
-                  filled, ok)
+                  to_usable, filled, ok)
         made = np.zeros(len(ys), bool)
         box_band(stack.weights, zone_index, filled, ok, grid_y, grid_x, residual, float(spacing), MIN_BOX, offset,
                  share, mine, out, made)

@@ -358,7 +358,7 @@ def fresh_cases(size=256, split=None, named=None):
             for seed in seeds:
                 draw = fresh_draw(seed)  # cheap: the name is known before the scene is rendered
                 if named is None or named(_fresh_name(seed, draw.n_views, draw.layers)):
-                    yield fresh_case(seed, name, size)
+                    yield fresh_case_of(draw, seed, name, size)
 
 
 def all_cases(size=256, fresh=True, split=None, named=None):

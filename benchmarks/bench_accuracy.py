@@ -225,9 +225,7 @@ def _resumed(out):
             while True:
                 try:
                     record = pickle.load(progress)
-                except EOFError:
-                    break
-                except pickle.UnpicklingError:  # the case being written when the run was stopped
+                except (EOFError, pickle.UnpicklingError):  # the end, or the case being written when stopped
                     break
                 records[record["case"]] = record
     print(f"resuming: {len(records)} cases already judged ({path})", flush=True)

@@ -274,7 +274,7 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-u": range(2300, 2320), "fresh-v": range(2400, 2420),
                "fresh-w": range(2500, 2520), "fresh-x": range(2600, 2620),
                "fresh-y": range(2700, 2720),
-               "fresh-z": range(2800, 2820)}
+               "fresh-z": range(2800, 2820), "fresh-aa": range(2900, 2920)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 
@@ -358,7 +358,7 @@ def fresh_cases(size=256, split=None, named=None):
             for seed in seeds:
                 draw = fresh_draw(seed)  # cheap: the name is known before the scene is rendered
                 if named is None or named(_fresh_name(seed, draw.n_views, draw.layers)):
-                    yield fresh_case(seed, name, size)
+                    yield fresh_case_of(draw, seed, name, size)
 
 
 def all_cases(size=256, fresh=True, split=None, named=None):

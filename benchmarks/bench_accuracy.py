@@ -225,9 +225,7 @@ def _resumed(out):
             while True:
                 try:
                     record = pickle.load(progress)
-                except EOFError:
-                    break
-                except pickle.UnpicklingError:  # the case being written when the run was stopped
+                except (EOFError, pickle.UnpicklingError):  # the end, or the case being written when stopped
                     break
                 records[record["case"]] = record
     print(f"resuming: {len(records)} cases already judged ({path})", flush=True)
@@ -239,7 +237,7 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     parser.add_argument("--split", default=None,
-                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-z)")
+                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-aa)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     parser.add_argument("--slopes", type=float, nargs="+", default=None,
                         help="judge every case at these slopes instead of its own (a sweep of the focus; "

@@ -19,8 +19,8 @@ import re
 
 import numpy as np
 
-#: The rows of a slope's table this reads, and the keys of their gains over the naive refocus.
-METHODS = {"default": "", "rendering, estimated disparity": "rendering "}
+#: The rows of a slope's table this reads, and the prefix of their gains' keys (``"default all"``, ...).
+METHODS = {"default": "default ", "rendering, estimated disparity": "rendering "}
 PARTS = ("all", "aliased", "clean")
 
 
@@ -40,7 +40,7 @@ def slopes_of(path):
                 row = {"share": share}
                 for method, prefix in METHODS.items():
                     for part, value, naive in zip(PARTS, table[method], table["naive"]):
-                        row[f"{prefix}default {part}" if prefix == "" else f"{prefix}{part}"] = value - naive
+                        row[prefix + part] = value - naive
                 out[(case, slope)] = row
                 table = {}
     return out
@@ -65,7 +65,7 @@ def main(argv=None):
     before, after = slopes_of(args.before), slopes_of(args.after)
     keys = [key for key in before if key in after]
     print(f"{len(keys)} slopes in both reports")
-    for method, prefix in (("default", "default "), ("rendering, estimated disparity", "rendering ")):
+    for method, prefix in METHODS.items():
         print(f"- {method}: before {summary([before[k] for k in keys], prefix)}")
         print(f"  after {summary([after[k] for k in keys], prefix)}")
     print(f"\nSlopes whose default moved by more than {args.margin:g} dB (overall / where aliased / clean):\n")

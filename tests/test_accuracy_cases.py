@@ -192,10 +192,11 @@ def test_a_name_filter_makes_only_the_random_scenes_it_passes(monkeypatch):
     """``bench_accuracy.py --cases`` judges a few scenes: the others of the 600 are not rendered (some seconds
     each), their names known from the draw."""
     made = []
-    make = accuracy_cases.fresh_case
-    monkeypatch.setattr(accuracy_cases, "fresh_case", lambda seed, *args: (made.append(seed), make(seed, *args))[1])
+    make = accuracy_cases.fresh_case_of
+    monkeypatch.setattr(accuracy_cases, "fresh_case_of",
+                        lambda draw, seed, *args: (made.append(seed), make(draw, seed, *args))[1])
     cases = list(accuracy_cases.all_cases(48, split="fresh-z", named=lambda name: name.startswith("fresh 2808,")))
-    assert made == [2808] and [case.name for case in cases] == [make(2808, "fresh-z", 48).name]
+    assert made == [2808] and [case.name for case in cases] == [accuracy_cases.fresh_case(2808, "fresh-z", 48).name]
 
 
 @pytest.mark.parametrize("seed", [300, 415, 500])

@@ -246,15 +246,19 @@ def matted(image, layers, slope, spacing, where=None):
     residual = disparity - slope
     behind = (residual < 0) if layers.larger_first else (residual > 0)  # the sharp surface (at the slope) is nearer
     band = (distance <= BAND_PX) & ~sharp & behind & (np.abs(residual) * spacing >= 1.0)
-    if where is not None:
-        band &= where
-    if not band.any():
+    wanted = band if where is None else band & where
+    if not wanted.any():
         return image
-    clean = np.pad((distance > BAND_PX).astype(np.float64), pad)
-    ys, xs = np.nonzero(band)
     stack = layers.stack
     positions = np.ascontiguousarray(stack.positions, np.float64)
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
+    if where is not None:  # the fits a box of ``where`` reads: its taps', and those of the views' points they stand for
+        widest = float(np.abs(residual[band]).max()) + float(np.diff(layers.bins[1]).max(initial=0.0))
+        reach = math.sqrt(2.0) * (widest * spacing / 2.0 + 1.0) + widest * float(apart.max()) + 3.0
+        band &= ndimage.distance_transform_edt(~where) <= reach
+    clean = np.pad((distance > BAND_PX).astype(np.float64), pad)
+    ys, xs = np.nonzero(band)
+    wanted = wanted[ys, xs]
     nearest = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable"))  # each view first, then the nearest
     n_ch = image.shape[-1]
     zero = np.zeros(clean.shape + (n_ch,))
@@ -279,8 +283,8 @@ def matted(image, layers, slope, spacing, where=None):
     done = np.zeros(len(ys), bool)
     centres = layers.bins[1]
     to_usable = ndimage.distance_transform_edt(shares < MIN_UNMIXED)
-    for k in np.unique(bins[fitted]):  # each background bin's zone: its outline pixels' boxes
-        mine = fitted & (bins == k)
+    for k in np.unique(bins[fitted & wanted]):  # each background bin's zone: its outline pixels' boxes
+        mine = fitted & wanted & (bins == k)
         reach = int(math.ceil(np.abs(residual[mine]).max() * spacing / 2.0)) + 1  # the widest box's
         zone = np.zeros(clean.shape, bool)
         zone[grid_y[mine], grid_x[mine]] = True

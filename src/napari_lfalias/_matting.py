@@ -63,19 +63,19 @@ MIN_SPREAD = 1e-5
 
 
 @njit(cache=True)
-def _clean_sample(values, weights, bins, mixed, share, offset, least, k, y, x, out):
+def _clean_sample(values, weights, bins, mixed, share, offset, usable, k, y, x, out):
     """The least weight of the bilinear taps at grid ``(y, x)`` where they all show bin ``k`` (in the view's
-    ``bins``, or as the background of an outline's ``mixed`` pixel) with weight and a background ``share`` of at
-    least ``least``, and the background's colour there (each tap less its ``offset``, over its share) into
-    ``out``; -1 where they do not."""
+    ``bins``, or as the background of an outline's ``mixed`` pixel) with weight and a large enough background
+    ``share`` (``usable``, of :func:`_usable_taps`), and the background's colour there (each tap less its
+    ``offset``, over its share) into ``out``; -1 where they do not."""
     n_rows, n_cols = share.shape
     y0, x0 = int(np.floor(y)), int(np.floor(x))
-    if y0 < 0 or x0 < 0 or y0 + 1 >= n_rows or x0 + 1 >= n_cols:
+    if y0 < 0 or x0 < 0 or y0 + 1 >= n_rows or x0 + 1 >= n_cols or not usable[y0, x0]:
         return -1.0
     weight = np.inf
     for yy in range(y0, y0 + 2):
         for xx in range(x0, x0 + 2):
-            if not (share[yy, xx] >= least and (bins[yy, xx] == k or mixed[yy, xx] == k) and weights[yy, xx] > 0.0):
+            if not ((bins[yy, xx] == k or mixed[yy, xx] == k) and weights[yy, xx] > 0.0):
                 return -1.0
             weight = min(weight, weights[yy, xx])
     fy, fx = y - y0, x - x0
@@ -88,32 +88,35 @@ def _clean_sample(values, weights, bins, mixed, share, offset, least, k, y, x, o
 
 
 @njit(cache=True)
-def _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions, order, qy, qx, y, x,
-                      out, to_usable):
+def _background_point(values, weights, bins, mixed, share, offset, usable, k, r, positions, order, apart, qy, qx, y,
+                      x, out, to_usable):
     """The background's point the ray from aperture position ``(qy, qx)`` through grid pixel ``(y, x)`` meets
     (residual ``r``), from the first view of ``order`` that shows it (:func:`_clean_sample`): its weight there,
-    -1 where none does. ``to_usable``: each grid pixel's distance (px) to the nearest whose share is at least
-    ``least``; a view whose offset moves the point less than that cannot show it, nor can any of ``order``
-    where the farthest does not (``order``: nearest ``(qy, qx)`` first)."""
+    -1 where none does. ``order``: the views nearest ``(qy, qx)`` first, ``apart`` their distances from it;
+    ``usable``, ``to_usable``: of :func:`_usable_taps`; a view whose offset moves the point less than
+    ``to_usable`` (less the taps' reach) cannot show it, and the search starts past them."""
     need = to_usable[int(y), int(x)] - 2.0
-    if need > 0.0:
-        last = order[order.shape[0] - 1]
-        if abs(r) * math.hypot(positions[last, 0] - qy, positions[last, 1] - qx) < need:
-            return -1.0
-    for j in order:  # view j shows at p + r (q_j - q) what the view at q shows at p
-        if need > 0.0 and abs(r) * math.hypot(positions[j, 0] - qy, positions[j, 1] - qx) < need:
-            continue
+    first, last = 0, order.shape[0]
+    if need > 0.0:  # the first view far enough, by bisection: ``apart`` ascends
+        while first < last:
+            middle = (first + last) // 2
+            if abs(r) * apart[middle] < need:
+                first = middle + 1
+            else:
+                last = middle
+    for i in range(first, order.shape[0]):  # view j shows at p + r (q_j - q) what the view at q shows at p
+        j = order[i]
         sy = y + r * (positions[j, 0] - qy)
         sx = x + r * (positions[j, 1] - qx)
-        weight = _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, least, k, sy, sx, out)
+        weight = _clean_sample(values[j], weights[j], bins[j], mixed, share, offset, usable, k, sy, sx, out)
         if weight > 0.0:
             return weight
     return -1.0
 
 
 @njit(cache=True, parallel=True)
-def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin, band_r, positions, nearest, min_views,
-             min_spread, min_fit, to_clean, out_offset, out_share, fitted):
+def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin, band_r, positions, nearest, apart,
+             min_views, min_spread, min_fit, usable, to_clean, out_offset, out_share, fitted):
     """Each band pixel's samples regressed on the clean background points its views would show there
     (module notes, 1 and 2): ``out_offset (P, C)`` (``a``), ``out_share (P,)`` (``b``), ``fitted (P,)``."""
     n = values.shape[0]
@@ -132,8 +135,8 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
         for u in range(n):
             if not weights[u, y, x] > 0.0:
                 continue
-            found = _background_point(values, weights, bins, mixed, clean, zero, 1.0, k, r, positions, nearest[u],
-                                      positions[u, 0], positions[u, 1], y, x, point, to_clean)
+            found = _background_point(values, weights, bins, mixed, clean, zero, usable, k, r, positions, nearest[u],
+                                      apart[u], positions[u, 0], positions[u, 1], y, x, point, to_clean)
             if found <= 0.0:
                 continue
             weight = min(weights[u, y, x], found)  # the noisier of the two samples (a vignette's corners)
@@ -165,19 +168,19 @@ def fit_band(values, weights, bins, mixed, clean, zero, band_y, band_x, band_bin
 
 
 @njit(cache=True, parallel=True)
-def fill_zone(values, weights, bins, mixed, share, offset, least, k, r, zone_y, zone_x, positions, nearest, to_usable,
-              out, ok):
+def fill_zone(values, weights, bins, mixed, share, offset, usable, k, r, zone_y, zone_x, positions, nearest, apart,
+              to_usable, out, ok):
     """For every view ``u`` and zone pixel (grid ``zone_y``, ``zone_x``): the background (bin ``k``, residual
     ``r``) that the view's sample there stands for in a box, ``out (n, Z, C)``: its own where it shows it
     (:func:`_clean_sample`), else the nearest view's that does; ``ok (n, Z)`` where one does. Made once for
     every outline pixel whose box reads it."""
     n = values.shape[0]
     n_ch = values.shape[3]
-    for z in prange(zone_y.shape[0]):
+    for u in prange(n):  # view by view: its own samples, most of what is found, are read in order
         point = np.empty(n_ch)
-        for u in range(n):
-            ok[u, z] = _background_point(values, weights, bins, mixed, share, offset, least, k, r, positions,
-                                         nearest[u], positions[u, 0], positions[u, 1], zone_y[z], zone_x[z],
+        for z in range(zone_y.shape[0]):
+            ok[u, z] = _background_point(values, weights, bins, mixed, share, offset, usable, k, r, positions,
+                                         nearest[u], apart[u], positions[u, 0], positions[u, 1], zone_y[z], zone_x[z],
                                          point, to_usable) > 0.0
             if ok[u, z]:
                 for c in range(n_ch):
@@ -230,6 +233,16 @@ def box_band(weights, zone_index, filled, ok, band_y, band_x, band_r, cell, min_
         done[p] = True
 
 
+def _usable_taps(share, least):
+    """Where a bilinear sample's four taps (rows and columns ``y, y + 1`` and ``x, x + 1``) all have a background
+    ``share`` of at least ``least``, ``(Y, X)`` bool at ``(y, x)``, and each pixel's distance (px) to the nearest
+    pixel with that share, ``(Y, X)`` float64."""
+    enough = share >= least
+    usable = np.zeros(share.shape, bool)
+    usable[:-1, :-1] = enough[:-1, :-1] & enough[1:, :-1] & enough[:-1, 1:] & enough[1:, 1:]
+    return usable, ndimage.distance_transform_edt(~enough)
+
+
 def matted(image, layers, slope, spacing, where=None):
     """``image`` (the composite of ``layers``, ``(Y, X, C)``) with the soft outlines of in-focus occluders
     matted (module notes), ``where`` (``(Y, X)`` bool; ``None``: everywhere): a new array, or ``image`` itself
@@ -260,6 +273,7 @@ def matted(image, layers, slope, spacing, where=None):
     ys, xs = np.nonzero(band)
     wanted = wanted[ys, xs]
     nearest = np.ascontiguousarray(np.argsort(apart, axis=1, kind="stable"))  # each view first, then the nearest
+    apart = np.ascontiguousarray(np.take_along_axis(apart, nearest, axis=1))  # ascending along each row
     n_ch = image.shape[-1]
     zero = np.zeros(clean.shape + (n_ch,))
     grid_y, grid_x = (ys + pad).astype(np.int64), (xs + pad).astype(np.int64)
@@ -270,8 +284,7 @@ def matted(image, layers, slope, spacing, where=None):
     fitted = np.zeros(len(ys), bool)
     mixed = np.full(clean.shape, -1, np.int64)  # none yet: the first pass takes clean samples only
     fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual,
-             positions, nearest, MIN_VIEWS, MIN_SPREAD, MIN_FIT, ndimage.distance_transform_edt(clean < 1.0), offset,
-             share, fitted)
+             positions, nearest, apart, MIN_VIEWS, MIN_SPREAD, MIN_FIT, *_usable_taps(clean, 1.0), offset, share, fitted)
     if not fitted.any():
         return image
     # the outline's samples, their fits taken off, stand in for the background they mix
@@ -282,21 +295,21 @@ def matted(image, layers, slope, spacing, where=None):
     out = np.empty((len(ys), n_ch))
     done = np.zeros(len(ys), bool)
     centres = layers.bins[1]
-    to_usable = ndimage.distance_transform_edt(shares < MIN_UNMIXED)
+    usable, to_usable = _usable_taps(shares, MIN_UNMIXED)
     for k in np.unique(bins[fitted & wanted]):  # each background bin's zone: its outline pixels' boxes
         mine = fitted & wanted & (bins == k)
         reach = int(math.ceil(np.abs(residual[mine]).max() * spacing / 2.0)) + 1  # the widest box's
         zone = np.zeros(clean.shape, bool)
         zone[grid_y[mine], grid_x[mine]] = True
-        zone = ndimage.binary_dilation(zone, np.ones((2 * reach + 1,) * 2, bool))
+        zone = ndimage.maximum_filter(zone, size=2 * reach + 1, mode="constant")
         zone_y, zone_x = np.nonzero(zone)
         zone_index = np.full(zone.shape, -1, np.int64)
         zone_index[zone_y, zone_x] = np.arange(len(zone_y))
         filled = np.empty((len(positions), len(zone_y), n_ch))
         ok = np.empty((len(positions), len(zone_y)), bool)
-        fill_zone(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, MIN_UNMIXED, int(k),
+        fill_zone(stack.values, stack.weights, layers.view_bins, mixed, shares, offsets, usable, int(k),
                   float(centres[k] - slope), zone_y.astype(np.int64), zone_x.astype(np.int64), positions, nearest,
-                  to_usable, filled, ok)
+                  apart, to_usable, filled, ok)
         made = np.zeros(len(ys), bool)
         box_band(stack.weights, zone_index, filled, ok, grid_y, grid_x, residual, float(spacing), MIN_BOX, offset,
                  share, mine, out, made)

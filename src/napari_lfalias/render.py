@@ -38,6 +38,10 @@ when not given):
    A blurred surface goes on behind what hides it, with the colour of what
    is seen of it nearby, so its blur reaches under an occluder's outline.
 4. The views' composites are summed and normalised by their coverage.
+5. The soft outline of an in-focus occluder over a defocused background,
+   where every view records a mix of the two, is matted from the views
+   (:mod:`._matting`): the occluder's share stays sharp, the background's
+   takes its blur.
 
 Where the light field has sample weights of its own (a calibrated
 vignette), a view's cell is not one weight: a blurred surface's box
@@ -84,6 +88,7 @@ import numpy as np
 from scipy import ndimage
 
 from . import _validate
+from ._matting import BAND_PX, matted
 from ._tiles import tiles_holding
 from .errors import ParameterError
 from .lightfield import LightField
@@ -489,6 +494,7 @@ class SlopeRenderer:
         disparity = np.ascontiguousarray(disparity, np.float64)
         confidence = np.ones(disparity.shape, np.float32) if confidence is None else confidence
         confidence = np.ascontiguousarray(confidence, np.float32)
+        given = disparity
         disparity = _with_mixed_edges(disparity, slope, OCCLUSION_GAP_PX / spacing)
         n = self.positions.shape[0]
         # float32 disparities (an estimate's) are warped in float32: the same values, half the memory
@@ -518,7 +524,8 @@ class SlopeRenderer:
         _disoccluded_in_focus(stack, bins, landed, warped[extra:-extra, extra:-extra], edges, centres, taps, order,
                               occluders, self.peak)
         fill, has_fill = _in_focus_colour(stack, bins, taps, order, occluders, bins_of if near else None)
-        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack)
+        return Layers(disparity, plan, bins, sample_conf, order, occluders, fill, has_fill, bool(larger_first), stack,
+                      given)
 
     def composite(self, layers, *, within=None, elsewhere=None, trust=True):
         """The :class:`Rendering` of ``layers`` (:meth:`layers`); ``within``, ``elsewhere``: as in
@@ -540,9 +547,11 @@ class SlopeRenderer:
         if trust:
             trusted = np.clip(np.divide(trusted, den, out=np.zeros_like(den), where=seen), 0, 1).astype(np.float32)
         in_focus = sharp_at(layers.disparity, slope, spacing) & (share < 1e-3)
-        rendering = Rendering(np.where((in_focus | ~seen)[..., None], self.naive, image).astype(np.float32),
-                              share.astype(np.float32), trusted if trust else None)
-        if windows is None or within is None:
+        partial = windows is not None and within is not None
+        image = matted(np.where((in_focus | ~seen)[..., None], self.naive, image), layers, slope, spacing,
+                       done[inner] if partial else None)
+        rendering = Rendering(image.astype(np.float32), share.astype(np.float32), trusted if trust else None)
+        if not partial:
             return rendering
         done = done[inner]
         return Rendering(*(None if part is None or other is None else
@@ -593,6 +602,8 @@ class Layers:
         The occlusion order the disparity was warped in.
     stack : ShiftedStack
         The views shifted for the slope, over the same grid as ``view_bins``.
+    given : ndarray (Y, X) float64
+        The disparity as given (its outlines not moved: where :mod:`._matting` looks for them).
     """
 
     disparity: np.ndarray
@@ -605,6 +616,7 @@ class Layers:
     has_fill: np.ndarray
     larger_first: bool
     stack: object
+    given: np.ndarray
 
     @property
     def reach(self):
@@ -639,7 +651,11 @@ class Layers:
         inputs |= np.any(self.fill != other.fill, axis=-1) & (self.has_fill | other.has_fill)
         reach = self.reach
         grown = ndimage.maximum_filter(inputs, size=2 * reach + 1) if reach else inputs
-        return grown[self.inner] | (self.disparity != other.disparity)
+        differs = grown[self.inner] | (self.disparity != other.disparity)
+        outlines = self.given != other.given  # an outline matted elsewhere, and the samples its fit takes
+        if outlines.any():
+            differs |= ndimage.maximum_filter(outlines, size=2 * (reach + BAND_PX) + 1)
+        return differs
 
 
 def _beyond(image, pad, extra):

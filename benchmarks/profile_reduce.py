@@ -64,6 +64,10 @@ STAGES = [
     ("render", "Layers.differs_from", "differs from"),
     ("render", "SlopeRenderer.composite", "composite (python)"),
     ("_render_kernels", "composite_views", "composite kernel"),
+    ("_matting", "matted", "matting (python)"),
+    ("_matting", "fit_band", "matting: fit"),
+    ("_matting", "fill_zone", "matting: backgrounds"),
+    ("_matting", "box_band", "matting: boxes"),
     ("reduce", "_replaced", "replaced: score and fringe"),
     ("depth_guided", "DepthGuide.blend_weight", "blend"),
     ("depth_guided", "DepthGuide.blend", "blend"),
@@ -101,7 +105,10 @@ class StageClock:
     def install(self):
         """Wrap every stage of :data:`STAGES` the package has (for good: this is a profiling run)."""
         for module_name, path, label in STAGES:
-            module = importlib.import_module(f"napari_lfalias.{module_name}")
+            try:
+                module = importlib.import_module(f"napari_lfalias.{module_name}")
+            except ModuleNotFoundError:  # an older tree
+                continue
             *owners, name = path.split(".")
             owner = module
             for part in owners:
@@ -115,6 +122,8 @@ class StageClock:
         # modules that imported a stage by name at import time call their own reference
         render = importlib.import_module("napari_lfalias.render")
         render.refocus = importlib.import_module("napari_lfalias.refocus").refocus
+        if hasattr(render, "matted"):
+            render.matted = importlib.import_module("napari_lfalias._matting").matted
 
 
 def scene_and_estimate(estimate_path, size, n_views):

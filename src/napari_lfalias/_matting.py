@@ -246,7 +246,9 @@ def _usable_taps(share, least):
 def matted(image, layers, slope, spacing, where=None):
     """``image`` (the composite of ``layers``, ``(Y, X, C)``) with the soft outlines of in-focus occluders
     matted (module notes), ``where`` (``(Y, X)`` bool; ``None``: everywhere): a new array, or ``image`` itself
-    where there is nothing to matte."""
+    where there is nothing to matte. A pixel's box un-mixes the outline samples it reads with their own
+    fits, so with ``where`` every outline pixel within reach of it is fitted too: the pixels matted are
+    the same as the whole image's there."""
     from .render import _bin_index, sharp_at
 
     disparity = layers.given  # the outlines where they are, not given to the sharper side

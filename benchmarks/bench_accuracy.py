@@ -148,7 +148,8 @@ def _save_images(folder, case, slope, naive, ours, reference, truth, mask, dispa
         return np.repeat(np.clip(x, 0, 1)[..., None], 3, axis=-1)
 
     lo, hi = np.percentile(disparity, [1, 99])
-    masks = np.stack([truth & ~mask, truth & mask, mask & ~truth], axis=-1).astype(np.float32)  # red missed, green found, blue extra
+    # red: missed, green: found, blue: flagged where nothing aliases
+    masks = np.stack([truth & ~mask, truth & mask, mask & ~truth], axis=-1).astype(np.float32)
     top = np.concatenate([naive, ours, reference], axis=1)
     top = np.repeat(top, 3 // top.shape[-1], axis=-1)  # grey (lenslet) cases as RGB
     bottom = np.concatenate([masks, grey((disparity - lo) / max(hi - lo, 1e-6)),

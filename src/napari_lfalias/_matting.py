@@ -286,7 +286,8 @@ def matted(image, layers, slope, spacing, where=None):
     fitted = np.zeros(len(ys), bool)
     mixed = np.full(clean.shape, -1, np.int64)  # none yet: the first pass takes clean samples only
     fit_band(stack.values, stack.weights, layers.view_bins, mixed, clean, zero, grid_y, grid_x, bins, residual,
-             positions, nearest, apart, MIN_VIEWS, MIN_SPREAD, MIN_FIT, *_usable_taps(clean, 1.0), offset, share, fitted)
+             positions, nearest, apart, MIN_VIEWS, MIN_SPREAD, MIN_FIT, *_usable_taps(clean, 1.0), offset, share,
+             fitted)
     if not fitted.any():
         return image
     # the outline's samples, their fits taken off, stand in for the background they mix

@@ -269,8 +269,8 @@ def matted(image, layers, slope, spacing, where=None):
     apart = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
     if where is not None:  # the fits a box of ``where`` reads: its taps', and those of the views' points they stand for
         widest = float(np.abs(residual[band]).max()) + float(np.diff(layers.bins[1]).max(initial=0.0))
-        reach = math.sqrt(2.0) * (widest * spacing / 2.0 + 1.0) + widest * float(apart.max()) + 3.0
-        band &= ndimage.distance_transform_edt(~where) <= reach
+        read_from = math.sqrt(2.0) * (widest * spacing / 2.0 + 1.0) + widest * float(apart.max()) + 3.0
+        band &= ndimage.distance_transform_edt(~where) <= read_from
     clean = np.pad((distance > BAND_PX).astype(np.float64), pad)
     ys, xs = np.nonzero(band)
     wanted = wanted[ys, xs]

@@ -53,3 +53,23 @@ def test_a_run_without_resume_starts_afresh(tmp_path):
 def test_resume_needs_the_report_it_continues():
     with pytest.raises(SystemExit, match="--resume needs --out"):
         bench.main(["--split", "tune", "--cases", "smooth over", "--resume"])
+
+
+def _summary(report):
+    text = report.read_text()
+    return text[text.index("## Summary"):text.index("## Notes")]
+
+
+def test_workers_share_the_cases_and_write_the_report_one_process_would(tmp_path):
+    alone, shared = tmp_path / "alone" / "accuracy.md", tmp_path / "shared" / "accuracy.md"
+    bench.main(ARGS + ["--out", str(alone)])
+    bench.main(ARGS + ["--out", str(shared), "--workers", "2"])
+    headings = [[line for line in out.read_text().splitlines() if line.startswith("### ")] for out in (alone, shared)]
+    assert len(headings[0]) >= 4 and headings[1] == headings[0]  # every case once, in the benchmark's order
+    assert _summary(shared) == _summary(alone)
+    assert not list(shared.parent.glob("accuracy.md.progress*"))  # the workers' progress gathered and removed
+
+
+def test_workers_need_the_report_they_keep_their_cases_beside():
+    with pytest.raises(SystemExit, match="--workers needs --out"):
+        bench.main(ARGS + ["--workers", "2"])

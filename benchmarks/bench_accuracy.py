@@ -271,6 +271,32 @@ def _run_workers(argv, args):
         raise SystemExit(f"workers {failed} failed; what every worker judged is kept: run again with --resume")
 
 
+def _judge_the_rest(args, done, images_dir):
+    """Judge the cases ``args`` asks for that ``done`` (records by name) lacks, adding each to ``done`` and to the
+    progress file as it is judged; the names of every case asked for, in the benchmark's order. Only the cases
+    judged are made (the random scenes; the fixed ones are made together)."""
+    worker, mine = _worker_share(args.worker) if args.worker else (None, None)
+    keep = _progress_file(args.out, worker) if args.out is not None else None
+    if mine is not None and keep is not None:
+        done |= _records(keep)
+    order = []
+
+    def wanted(name):
+        if args.cases is not None and args.cases.lower() not in name.lower():
+            return False
+        if mine is not None and not mine(name):
+            return False
+        order.append(name)
+        return name not in done
+
+    for case in all_cases(args.size, split=args.split, named=wanted):
+        done[case.name] = _judge_case(case, args.slopes or case.slopes, images_dir)
+        if keep is not None:
+            with keep.open("ab") as progress:
+                pickle.dump(done[case.name], progress)
+    return order
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -307,26 +333,8 @@ def main(argv=None):
         _run_workers(argv, args)
         args.resume = True
     done = _resumed(args.out) if args.resume else {}
-    worker, mine = _worker_share(args.worker) if args.worker else (None, None)
-    keep = _progress_file(args.out, worker) if args.out is not None else None
-    if mine is not None and keep is not None:
-        done |= _records(keep)
-    order = []  # every case's name in the benchmark's order; only those not judged yet are made
-
-    def wanted(name):
-        if args.cases is not None and args.cases.lower() not in name.lower():
-            return False
-        if mine is not None and not mine(name):
-            return False
-        order.append(name)
-        return name not in done
-
-    for case in all_cases(args.size, split=args.split, named=wanted):
-        done[case.name] = _judge_case(case, args.slopes or case.slopes, images_dir)
-        if keep is not None:
-            with keep.open("ab") as progress:
-                pickle.dump(done[case.name], progress)
-    if mine is not None:
+    order = _judge_the_rest(args, done, images_dir)
+    if args.worker:
         return
     records = [done[name] for name in order]
     sections = [r["section"] for r in records]

@@ -347,7 +347,8 @@ def fresh_case_of(draw, seed, split, size=256, covering_shift=0.0):
 
 
 def _fresh_name(seed, n_views, layers):
-    return f"fresh {seed}, {n_views}x{n_views}: " + " / ".join(f"{t} {d:+.1f}" for d, t, _ in layers)
+    # d + 0.0: a layer drawn at -0.0 is +0.0 once moved (fresh_case_of), and the name must not change
+    return f"fresh {seed}, {n_views}x{n_views}: " + " / ".join(f"{t} {d + 0.0:+.1f}" for d, t, _ in layers)
 
 
 def fresh_cases(size=256, split=None, named=None):

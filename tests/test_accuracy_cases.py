@@ -199,6 +199,16 @@ def test_a_name_filter_makes_only_the_random_scenes_it_passes(monkeypatch):
     assert made == [2808] and [case.name for case in cases] == [accuracy_cases.fresh_case(2808, "fresh-z", 48).name]
 
 
+def test_a_random_scene_is_filtered_by_the_name_it_gets():
+    """fresh 1819 draws a layer at -0.0, which the case's layers hold as +0.0: the filter asked for the one name
+    and the case came with the other, so a resumed run judged it again and could not find its record."""
+    asked = []
+    cases = list(accuracy_cases.all_cases(48, split="fresh-p",
+                                          named=lambda name: (asked.append(name), name.startswith("fresh 1819,"))[1]))
+    assert [case.name for case in cases] == [name for name in asked if name.startswith("fresh 1819,")]
+    assert "-0.0" not in cases[0].name
+
+
 @pytest.mark.parametrize("seed", [300, 415, 500])
 def test_a_fresh_scene_is_drawn_the_same_from_its_seed_and_its_depths_are_physical(seed):
     """A random scene is the same whenever its seed is drawn (so a split means the same cases on any

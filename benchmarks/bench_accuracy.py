@@ -28,8 +28,9 @@ Run::
 
     .venv/bin/python benchmarks/bench_accuracy.py --out benchmarks/results/accuracy.md
 
-It takes about 2.5 hours in one process on two cores, 1.7 hours with
-``--workers 2`` (the cases shared between two processes of this script).
+It takes about 2.2 hours in one process on two cores (19 slopes a minute),
+under 1.9 with ``--workers 2`` (the cases shared between two processes of
+this script; 26 a minute, stop 57).
 Each case is kept as it is judged (``accuracy.md.progress`` beside the
 report, ``.progress.K`` for worker ``K``); a run stopped part way continues
 where it was with the same command and ``--resume``, and makes only the

@@ -257,10 +257,9 @@ def _run_workers(argv, args):
     """Judge the cases in ``args.workers`` processes of this script (``--worker k/n``, each resuming from the
     run's progress and keeping its own), then gather what they kept into the run's progress file."""
     out, n = args.out, args.workers
-    passed = [word for i, word in enumerate(argv) if word != "--workers" and (i == 0 or argv[i - 1] != "--workers")]
-    passed = [word for word in passed if not word.startswith("--workers=")]
-    resume = [] if "--resume" in passed else ["--resume"]
-    workers = [subprocess.Popen([sys.executable, __file__, *passed, *resume, "--worker", f"{k}/{n}"])
+    resume = [] if args.resume else ["--resume"]
+    # the last --workers given is the one argparse keeps: each worker runs as one process
+    workers = [subprocess.Popen([sys.executable, __file__, *argv, *resume, "--workers", "1", "--worker", f"{k}/{n}"])
                for k in range(n)]
     failed = [k for k, worker in enumerate(workers) if worker.wait() != 0]
     with _progress_file(out).open("ab") as progress:

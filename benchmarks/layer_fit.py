@@ -44,6 +44,7 @@ from napari_lfalias.refocus import shift_views
 from napari_lfalias.synthetic import layered_scene
 
 from _harness import kept_notes, table, write_report
+from outline_error import error_image, outline_band
 
 #: How far (px) from the occluder's edge in the disparity map its share is fitted (beyond: 0 or 1).
 NEAR_PX = 8.0
@@ -182,8 +183,7 @@ def judged(case, seed):
               layered_rendering(lf, slope, scene.disparity, front, back))
     inner = np.zeros(reference.shape[:2], bool)
     inner[MARGIN:-MARGIN, MARGIN:-MARGIN] = True
-    edge = ndimage.morphological_gradient(scene.disparity, size=3) > 0.5
-    band = ndimage.binary_dilation(edge, iterations=6) & inner
+    band = outline_band(scene.disparity, 6) & inner
     aliased = metrics.aliased_pixels(images[0], reference) & inner
     psnr = [metrics.psnr(image, reference, mask=region) if region.sum() >= 20 else np.nan
             for region in (band, inner, aliased) for image in images]
@@ -197,11 +197,8 @@ def save_images(path, images, gain=20.0):
     reference = images[-1]
     crop = (slice(MARGIN, -MARGIN), slice(MARGIN, -MARGIN))
 
-    def error(image):
-        return np.repeat(np.abs(image - reference).max(-1, keepdims=True) * gain, 3, -1)
-
     top = np.concatenate([np.clip(image[crop], 0, 1) for image in images], axis=1)
-    bottom = np.concatenate([np.clip(error(image)[crop], 0, 1) for image in images[:-1]]
+    bottom = np.concatenate([np.clip(error_image(image, reference, gain)[crop], 0, 1) for image in images[:-1]]
                             + [np.zeros_like(reference[crop])], axis=1)
     picture = np.repeat(np.repeat(np.concatenate([top, bottom], axis=0), 2, 0), 2, 1)
     iio.imwrite(path, (picture * 255).round().astype(np.uint8))

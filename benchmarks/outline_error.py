@@ -38,6 +38,16 @@ FRONT, BACK = 1.6, -2.0
 SEEDS = range(3)
 
 
+def outline_band(disparity, px):
+    """``(Y, X)`` bool: the pixels within ``px`` of a depth edge of ``disparity``."""
+    return ndimage.binary_dilation(ndimage.morphological_gradient(disparity, size=3) > 0.5, iterations=px)
+
+
+def error_image(image, reference, gain):
+    """``image``'s largest channel error against ``reference`` times ``gain``, as grey RGB (unclipped)."""
+    return np.repeat(np.abs(image - reference).max(-1, keepdims=True) * gain, 3, -1)
+
+
 @contextlib.contextmanager
 def mask_cutoff(cutoff):
     """The synthetic scenes' outlines at ``cutoff`` (cycles/px) while inside."""
@@ -60,8 +70,7 @@ def band_psnr(front, back, n_views, slope, cutoff):
             reference = scene.reference(slope, interpolation="exact")
         naive = lfa.refocus(scene.lightfield, slope)
         rendering = lfa.antialiased_refocus(scene.lightfield, slope, scene.disparity)
-        band = ndimage.binary_dilation(ndimage.morphological_gradient(scene.disparity, size=3) > 0.5,
-                                       iterations=BAND_PX)
+        band = outline_band(scene.disparity, BAND_PX)
         values.append((metrics.psnr(rendering, reference, mask=band), metrics.psnr(naive, reference, mask=band)))
         first = first or (naive, rendering, reference, band)
     return np.mean(values, axis=0), first
@@ -78,12 +87,10 @@ def save_errors(path, images, gain=50.0):
     def big(image):
         return np.repeat(np.repeat(np.clip(image[crop], 0, 1), 4, 0), 4, 1)
 
-    def error(image):
-        return np.repeat(np.abs(image - reference).max(-1, keepdims=True) * gain, 3, -1)
-
     top = np.concatenate([big(naive), big(rendering), big(reference)], axis=1)
     shown_band = np.repeat(band[..., None], 3, -1).astype(np.float32)
-    bottom = np.concatenate([big(error(naive)), big(error(rendering)), big(shown_band)], axis=1)
+    bottom = np.concatenate([big(error_image(naive, reference, gain)), big(error_image(rendering, reference, gain)),
+                             big(shown_band)], axis=1)
     iio.imwrite(path, (np.concatenate([top, bottom], axis=0) * 255).round().astype(np.uint8))
 
 

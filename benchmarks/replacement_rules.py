@@ -31,6 +31,7 @@ import numpy as np
 
 import napari_lfalias as lfa
 from napari_lfalias import depth_guided, metrics
+from napari_lfalias.baselines import view_spacing
 from napari_lfalias.depth_guided import DepthGuide
 from napari_lfalias.reduce import replaced_pixels
 
@@ -44,7 +45,7 @@ def dump_slope(lf, slope, reference, truth, estimate, path):
     detector = lfa.AliasingDetector(lf, disparity=estimate)
     result = lfa.reduce_aliasing(lf, slope, detector=detector)
     guide = detector.guide
-    np.savez_compressed(path, slope=slope, reference=reference.astype(np.float32), truth=truth,
+    np.savez_compressed(path, slope=slope, disparity=estimate.disparity, spacing=view_spacing(lf.positions), reference=reference.astype(np.float32), truth=truth,
                         naive=result.refocused, default=result.image,
                         rendering=guide.scored_rendering(slope).image, score=guide.cautious_scores(slope),
                         spread=guide.edge_spread(slope), faint_where=guide.faint_where(slope))

@@ -53,3 +53,21 @@ def test_a_dump_the_package_no_longer_gives_back_is_refused(dumped, tmp_path):
     np.savez(tmp_path / "stale.npz", **record)
     with pytest.raises(SystemExit, match="dump again"):
         rules.evaluate([tmp_path], {"faint_fraction": [0.125]}, check=True)
+
+
+def test_the_faint_rule_variants_start_from_the_packages_rule(dumped):
+    """benchmarks/faint_rules.py: its default variant is the package's rule, and each variant only takes
+    faint pixels away from it (the flagged ones and their fringe stay)."""
+    faint_rules = pytest.importorskip("faint_rules")
+    record = dict(np.load(dumped[0] / "faint.npz"))
+    from napari_lfalias.reduce import replaced_pixels
+
+    package = replaced_pixels(record["score"], record["spread"], 0.02, record["faint_where"])
+    assert np.array_equal(faint_rules.variant(record), package) and package.any()
+    _, flagged = faint_rules.faint_and_flagged(record)
+    for name, options in faint_rules.VARIANTS:
+        mask = faint_rules.variant(record, **options)
+        assert not (mask & ~package).any() and not (flagged & ~mask).any(), name
+    assert faint_rules.variant(record, off=True).sum() < package.sum()  # this slope's aliasing is faint
+    results = faint_rules.judged([dumped[0]])
+    assert results["default"][0, 0] > results["no faint rule"][0, 0] + 3

@@ -224,7 +224,7 @@ IN_BAND_GROWTH = 8
 #: scene 3207 at 0.7 (a tiles wall 2.7 px per view step out of focus, 5x5 views): 106 specks of 1 to 7 px
 #: rendered in focus left rings of the wall's box around them, the rendering with the true disparity 62.60 dB
 #: without the test and 56.34 with it (the naive refocus 62.50), and the faint rule replaced them: the default
-#: reduction 0.72 dB below the naive refocus. Measured in results/accuracy.md's notes, stop 58.
+#: reduction 0.72 dB below the naive refocus (0.05 above it now). Measured: results/focus_specks.md.
 FOCUS_SURFACE_SHARE = 0.25
 #: See :data:`FOCUS_SURFACE_SHARE`.
 FOCUS_SURFACE_WINDOW = 15

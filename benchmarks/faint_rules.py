@@ -65,20 +65,21 @@ def faint_and_flagged(record):
     return faint, flagged
 
 
-def _regions_kept(faint, flagged, enough):
-    """``faint`` less the 8-connected regions of ``faint | flagged`` that touch no flagged pixel and for which
-    ``enough(labels, count)`` (a bool per label, 0 first) is False."""
+def _large_regions(faint, flagged, area):
+    """``faint`` less the 8-connected regions of ``faint | flagged`` under ``area`` pixels that touch no
+    flagged pixel."""
     labels, count = ndimage.label(faint | flagged, structure=np.ones((3, 3), bool))
-    keep = enough(labels, count)
+    keep = np.bincount(labels.ravel(), minlength=count + 1) >= area
     keep[np.unique(labels[flagged])] = True
     keep[0] = False
     return faint & keep[labels]
 
 
 def variant(record, off=False, density=0.0, window=15, area=0, image_share=0.0, surface_share=0.0,
-            with_flags=False):
-    """The pixels replaced under a variant of the faint rule (module notes)."""
-    faint, flagged = faint_and_flagged(record)
+            with_flags=False, parts=None):
+    """The pixels replaced under a variant of the faint rule (module notes); ``parts``: the record's
+    :func:`faint_and_flagged`, where already made."""
+    faint, flagged = faint_and_flagged(record) if parts is None else parts
     if off:
         return flagged
     if with_flags:
@@ -87,8 +88,7 @@ def variant(record, off=False, density=0.0, window=15, area=0, image_share=0.0, 
     if density:
         faint = faint & (ndimage.uniform_filter(faint.astype(np.float32), window) >= density)
     if area:
-        faint = _regions_kept(faint, flagged, lambda labels, count: np.bincount(labels.ravel(), minlength=count + 1)
-                              >= area)
+        faint = _large_regions(faint, flagged, area)
     if image_share and (faint & ~flagged).mean() < image_share:
         faint = faint & flagged
     if surface_share:
@@ -105,11 +105,17 @@ def variant(record, off=False, density=0.0, window=15, area=0, image_share=0.0, 
 
 
 def judged(folders):
-    """``{variant name: (n_slopes, 4) array}`` of :func:`replacement_rules.judge` over the dumps in ``folders``."""
-    records = [dict(np.load(path)) for folder in folders for path in sorted(Path(folder).glob("*.npz"))]
-    if not records:
+    """``{variant name: (n_slopes, 4) array}`` of :func:`replacement_rules.judge` over the dumps in ``folders``
+    (each record's faint and flagged pixels made once for every variant)."""
+    results = {name: [] for name, _ in VARIANTS}
+    for path in (path for folder in folders for path in sorted(Path(folder).glob("*.npz"))):
+        record = dict(np.load(path))
+        parts = faint_and_flagged(record)
+        for name, options in VARIANTS:
+            results[name].append(judge(record, variant(record, **options, parts=parts)))
+    if not results["default"]:
         raise SystemExit(f"no dumps (*.npz) in {', '.join(map(str, folders))}")
-    return {name: np.array([judge(r, variant(r, **options)) for r in records]) for name, options in VARIANTS}
+    return {name: np.array(rows) for name, rows in results.items()}
 
 
 def rows_of(results):
@@ -134,12 +140,14 @@ def main(argv=None):
     args = parser.parse_args(argv)
     sections = []
     for role, folders in (("chosen on", args.choose), ("reported on", args.report)):
-        for folder in folders:
-            sections.append(f"### {role} {folder.name}\n\n" + table(HEAD, rows_of(judged([folder]))))
+        each = [judged([folder]) for folder in folders]
+        for folder, results in zip(folders, each):
+            sections.append(f"### {role} {folder.name}\n\n" + table(HEAD, rows_of(results)))
             print(sections[-1], flush=True)
-        if len(folders) > 1:
+        if len(folders) > 1:  # the folders' slopes together: their rows, not judged again
+            pooled = {name: np.concatenate([results[name] for results in each]) for name in each[0]}
             sections.append(f"### {role}: all of {', '.join(f.name for f in folders)}\n\n"
-                            + table(HEAD, rows_of(judged(folders))))
+                            + table(HEAD, rows_of(pooled)))
             print(sections[-1], flush=True)
     if args.out is not None:
         intro = ("PSNR differences (dB) against the naive refocus, as `bench_accuracy.py` judges the default; the "

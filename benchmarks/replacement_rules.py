@@ -45,10 +45,11 @@ def dump_slope(lf, slope, reference, truth, estimate, path):
     detector = lfa.AliasingDetector(lf, disparity=estimate)
     result = lfa.reduce_aliasing(lf, slope, detector=detector)
     guide = detector.guide
-    np.savez_compressed(path, slope=slope, disparity=estimate.disparity, spacing=view_spacing(lf.positions), reference=reference.astype(np.float32), truth=truth,
-                        naive=result.refocused, default=result.image,
-                        rendering=guide.scored_rendering(slope).image, score=guide.cautious_scores(slope),
-                        spread=guide.edge_spread(slope), faint_where=guide.faint_where(slope))
+    np.savez_compressed(path, slope=slope, disparity=estimate.disparity, spacing=view_spacing(lf.positions),
+                        reference=reference.astype(np.float32), truth=truth, naive=result.refocused,
+                        default=result.image, rendering=guide.scored_rendering(slope).image,
+                        score=guide.cautious_scores(slope), spread=guide.edge_spread(slope),
+                        faint_where=guide.faint_where(slope))
 
 
 def dump(splits, out, size=256):

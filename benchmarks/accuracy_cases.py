@@ -276,7 +276,8 @@ FRESH_SEEDS = {"fresh-a": range(300, 320), "fresh-b": range(400, 420), "fresh-c"
                "fresh-y": range(2700, 2720),
                "fresh-z": range(2800, 2820), "fresh-aa": range(2900, 2920),
                "fresh-ab": range(3000, 3020), "fresh-ac": range(3100, 3120),
-               "fresh-ad": range(3200, 3220), "fresh-ae": range(3300, 3320)}
+               "fresh-ad": range(3200, 3220), "fresh-ae": range(3300, 3320),
+               "fresh-af": range(3400, 3420)}
 _FRESH_TEXTURES = ("smooth", "noise", "fine", "grey", "tiles", "lines", "stripes", "checker", "bricks")
 
 

@@ -303,7 +303,7 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=256, help="view size of the synthetic scenes")
     parser.add_argument("--out", type=Path, default=None, help="write the report here (markdown)")
     parser.add_argument("--split", default=None,
-                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-ae)")
+                        help="only this split (tune, holdout, real, real-wider, fresh-a to fresh-af)")
     parser.add_argument("--cases", default=None, help="only cases whose name contains this (case-insensitive)")
     parser.add_argument("--slopes", type=float, nargs="+", default=None,
                         help="judge every case at these slopes instead of its own (a sweep of the focus; "
